@@ -1,0 +1,322 @@
+"""`FocalConfig`: every knob of FocalPolicy, with the paper's settings as defaults.
+
+Registered as LeRobot policy type ``focal`` (``--policy.type=focal``). The class name ``FocalConfig`` and this
+module's name matter: LeRobot derives ``FocalPolicy`` in ``modeling_focal`` and
+``make_focal_pre_post_processors`` in ``processor_focal`` from them by string replacement.
+
+Windows (n_obs = 2, H = 4, N = 3, L = 12), all relative to the current step t:
+    observations  t-1, t                      (observation_delta_indices = [-1, 0])
+    macro-trajectory  a_t … a_{t+L-1}         (action_delta_indices = [0 … L-1])
+    proximal chunk    a_t … a_{t+H-1}         supervised by L_time *and* executed — the same window.
+The authors' code supervises steps 0..H-1 of a window starting at t-1 but executes steps 1..H; starting the
+action window at t removes that off-by-one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_focal.policy.network import unet_downsampling_factor
+from lerobot_focal.policy.objective import ObjectiveSpec
+from lerobot_focal.policy.time_samplers import TimeSamplerSpec
+
+OBS_POINTCLOUD = "observation.pointcloud"
+
+# The paper's ablations, each a set of field values (Tables 4, 9 and the appendix). Applying one is
+# equivalent to passing those fields on the command line.
+ABLATIONS: dict[str, dict[str, object]] = {
+    "wo_las": {"anchor_sampler": "adjacent"},
+    "wo_fco_las": {"objective": "flowpolicy", "anchor_sampler": "adjacent"},
+    "time_only_fco": {"regularizer": "time_mse"},
+    "freq_only_fco": {"time_weight": 0.0},
+    "fixed_r": {"anchor_sampler": "fixed", "fixed_r": 1.0},
+    "fco_full_macro": {"time_loss_window": "macro"},
+    "fco_prox_freq": {"time_loss_window": "macro", "freq_loss_window": "proximal"},
+    "low_freq_only": {"freq_band": "low"},
+    "high_freq_only": {"freq_band": "high"},
+    "anchor_0.4_0.5": {"anchor_mu": 0.4, "anchor_sigma": 0.5},
+    "anchor_1.4_0.5": {"anchor_mu": 1.4, "anchor_sigma": 0.5},
+    # Not a paper ablation: what the authors' public code does (mixture anchor, online stop-grad target).
+    "public_code": {"anchor_sampler": "mixture", "consistency_target": "online"},
+}
+
+
+@PreTrainedConfig.register_subclass("focal")
+@dataclass
+class FocalConfig(PreTrainedConfig):
+    # --- windows -------------------------------------------------------------------------------------------
+    n_obs_steps: int = 2
+    chunk_size: int = 4  # H: proximal chunk = executed chunk
+    n_chunks: int = 3  # N: chunks in the macro-trajectory, L = N·H
+    # Frames at the end of each episode that never start a training window. None → H − 1, so the supervised
+    # proximal chunk is always real data; the foresight part past the episode end repeats the last action
+    # (LeRobot's edge padding, the same as DP3's replicate padding).
+    drop_n_last_frames: int | None = None
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            # A point cloud is a STATE feature to LeRobot; MIN_MAX per xyz channel is DP3's "limits" normaliser.
+            "VISUAL": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.MIN_MAX,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+
+    # --- observations --------------------------------------------------------------------------------------
+    pointcloud_key: str = OBS_POINTCLOUD
+    use_pointcloud: bool = True
+    use_pointcloud_color: bool = False  # use xyz+rgb when the cloud has 6 channels
+    pointcloud_feature_dim: int = 64
+    use_state: bool = True
+    use_env_state: bool = False
+    state_feature_dim: int = 64
+    use_images: bool = True
+    vision_backbone: str = "resnet18"
+    # No download at run time: torchvision names such as "ResNet18_Weights.IMAGENET1K_V1" work only where
+    # the weights are cached. GroupNorm (the default) cannot be combined with pretrained BatchNorm weights.
+    pretrained_backbone_weights: str | None = None
+    use_group_norm: bool = True
+    spatial_softmax_num_keypoints: int = 32
+    resize_shape: tuple[int, int] | None = None
+    crop_shape: tuple[int, int] | None = None
+    crop_is_random: bool = True
+    use_separate_rgb_encoder_per_camera: bool = False
+
+    # --- network -------------------------------------------------------------------------------------------
+    down_dims: tuple[int, ...] = (512, 1024, 2048)
+    kernel_size: int = 5
+    n_groups: int = 8
+    time_embed_dim: int = 128
+    use_film_scale_modulation: bool = True
+    gradient_checkpointing: bool = False
+    time_scale: float = 99.0
+
+    # --- method: sampling, objective, target ---------------------------------------------------------------
+    ablation: str | None = None  # one of ABLATIONS; sets the fields below
+    objective: str = "fco"  # fco | flowpolicy
+    anchor_sampler: str = "logit_normal"  # logit_normal (LAS) | adjacent | fixed | mixture
+    time_eps: float = 0.01
+    anchor_mu: float = 4.0
+    anchor_sigma: float = 1.6
+    adjacent_delta: float = 0.01
+    fixed_r: float = 1.0
+    mixture_mu_a: float = 0.6
+    mixture_sigma_a: float = 1.6
+    mixture_ratio: float = 0.15
+    time_loss_window: str = "proximal"  # proximal | macro
+    time_weight: float = 1.0
+    regularizer: str = "freq"  # freq | time_mse | none
+    freq_loss_window: str = "macro"  # macro | proximal
+    freq_weight: float = 1e-4  # λ
+    freq_band: str = "all"  # all | low | high
+    freq_cutoff: int | None = None
+    macro_mse_weight: float = 1.0
+    cfm_num_segments: int = 2
+    cfm_boundary: float = 1.0
+    cfm_alpha: float = 1e-5
+    # θ⁻ of the consistency target: "ema" (the paper) or "online" weights under no_grad (the authors' code).
+    consistency_target: str = "ema"
+    num_inference_steps: int = 1  # NFE per chunk; > 1 integrates with Euler steps
+
+    # --- EMA (DP3's schedule: decay = 1 − (1 + step)^−power, clipped) --------------------------------------
+    use_ema: bool = True
+    ema_power: float = 0.75
+    ema_min_decay: float = 0.0
+    ema_max_decay: float = 0.9999
+    ema_update_after_step: int = 0
+    use_ema_for_inference: bool = True
+
+    # Refuse batches with NaN/inf instead of silently training on them (one reduction per key per step).
+    check_finite: bool = True
+
+    # --- optimisation (paper Table "Hyperparameters setup") ------------------------------------------------
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.95, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-6
+    # The authors never clip; LeRobot's default of 10 only acts on exploding gradients.
+    optimizer_grad_clip_norm: float = 10.0
+    scheduler_name: str = "cosine"
+    scheduler_warmup_steps: int = 500
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self._apply_ablation()
+        if self.drop_n_last_frames is None:
+            self.drop_n_last_frames = self.chunk_size - 1
+        if self.n_obs_steps < 1 or self.chunk_size < 1 or self.n_chunks < 1:
+            raise ValueError(
+                f"n_obs_steps, chunk_size and n_chunks must be ≥ 1 (got {self.n_obs_steps}, "
+                f"{self.chunk_size}, {self.n_chunks})."
+            )
+        factor = unet_downsampling_factor(self.down_dims)
+        if self.horizon % factor != 0:
+            ok = [h for h in range(factor, 4 * factor + 1, factor)]
+            raise ValueError(
+                f"The U-Net with down_dims={tuple(self.down_dims)} halves the horizon {len(self.down_dims) - 1} "
+                f"times, so the macro horizon L = chunk_size·n_chunks must be a multiple of {factor}; got "
+                f"L = {self.chunk_size}·{self.n_chunks} = {self.horizon}. Fix: choose chunk_size/n_chunks with L "
+                f"in {ok}, or use fewer down_dims."
+            )
+        if self.consistency_target not in ("ema", "online"):
+            raise ValueError(f"consistency_target must be 'ema' or 'online', got {self.consistency_target!r}.")
+        if self.consistency_target == "ema" and not self.use_ema:
+            raise ValueError("consistency_target='ema' needs use_ema=true (or set consistency_target='online').")
+        if self.num_inference_steps < 1:
+            raise ValueError(f"num_inference_steps must be ≥ 1, got {self.num_inference_steps}.")
+        if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0:
+            raise ValueError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
+        # Building the specs validates every method switch with a message naming the allowed values.
+        self.objective_spec()
+        self.time_sampler_spec()
+
+    def _apply_ablation(self) -> None:
+        if self.ablation is None:
+            return
+        if self.ablation not in ABLATIONS:
+            raise ValueError(f"Unknown ablation {self.ablation!r}. Choose one of {sorted(ABLATIONS)} or leave it unset.")
+        defaults = {f.name: f.default for f in dataclasses.fields(FocalConfig)}
+        for name, value in ABLATIONS[self.ablation].items():
+            current = getattr(self, name)
+            if current != defaults[name] and current != value:
+                raise ValueError(
+                    f"ablation={self.ablation!r} sets {name}={value!r}, but {name}={current!r} was also given. "
+                    "Drop one of the two."
+                )
+            setattr(self, name, value)
+
+    # --- derived -------------------------------------------------------------------------------------------
+    @property
+    def horizon(self) -> int:
+        """L = N·H, the macro-trajectory length the network predicts."""
+        return self.chunk_size * self.n_chunks
+
+    @property
+    def n_action_steps(self) -> int:
+        """Actions executed per network evaluation: the proximal chunk (execution window = supervised window)."""
+        return self.chunk_size
+
+    def objective_spec(self) -> ObjectiveSpec:
+        return ObjectiveSpec(
+            kind=self.objective,
+            chunk_size=self.chunk_size,
+            time_window=self.time_loss_window,
+            time_weight=self.time_weight,
+            regularizer=self.regularizer,
+            freq_window=self.freq_loss_window,
+            freq_weight=self.freq_weight,
+            freq_band=self.freq_band,
+            freq_cutoff=self.freq_cutoff,
+            macro_mse_weight=self.macro_mse_weight,
+            cfm_num_segments=self.cfm_num_segments,
+            cfm_boundary=self.cfm_boundary,
+            cfm_delta=self.adjacent_delta,
+            cfm_alpha=self.cfm_alpha,
+        )
+
+    def time_sampler_spec(self) -> TimeSamplerSpec:
+        return TimeSamplerSpec(
+            kind=self.anchor_sampler,
+            eps=self.time_eps,
+            anchor_mu=self.anchor_mu,
+            anchor_sigma=self.anchor_sigma,
+            adjacent_delta=self.adjacent_delta,
+            fixed_r=self.fixed_r,
+            mixture_mu_a=self.mixture_mu_a,
+            mixture_sigma_a=self.mixture_sigma_a,
+            mixture_ratio=self.mixture_ratio,
+        )
+
+    # Which of the (possibly many) input features the policy uses. `make_policy` fills input_features with
+    # every non-action dataset key, so the policy must pick its own and ignore the rest.
+    @property
+    def used_pointcloud_key(self) -> str | None:
+        return self.pointcloud_key if self.use_pointcloud and self.pointcloud_key in self.input_features else None
+
+    @property
+    def used_state_key(self) -> str | None:
+        return OBS_STATE if self.use_state and OBS_STATE in self.input_features else None
+
+    @property
+    def used_env_state_key(self) -> str | None:
+        return OBS_ENV_STATE if self.use_env_state and OBS_ENV_STATE in self.input_features else None
+
+    @property
+    def used_image_keys(self) -> list[str]:
+        if not self.use_images:
+            return []
+        # Depth maps and other non-RGB visual features are not fed to the RGB encoder.
+        return [k for k, ft in self.image_features.items() if len(ft.shape) == 3 and ft.shape[0] == 3]
+
+    @property
+    def used_observation_keys(self) -> list[str]:
+        keys = [self.used_pointcloud_key, self.used_state_key, self.used_env_state_key, *self.used_image_keys]
+        return [k for k in keys if k]
+
+    def validate_features(self) -> None:
+        action = self.output_features.get(ACTION) if self.output_features else None
+        if action is None or action.type is not FeatureType.ACTION or len(action.shape) != 1:
+            raise ValueError(
+                f"FocalPolicy needs a 1-D '{ACTION}' output feature; got {action}. Check the dataset's "
+                "'action' feature (shape (d,))."
+            )
+        if not self.used_observation_keys:
+            available = sorted(self.input_features) if self.input_features else []
+            raise ValueError(
+                "FocalPolicy found no observation it can use. It reads "
+                f"'{self.pointcloud_key}' (P, 3|6), '{OBS_STATE}' (D,), RGB 'observation.images.*' (3, H, W) "
+                f"and, with use_env_state=true, '{OBS_ENV_STATE}'. The dataset/env provides: {available}. "
+                "Fix: record one of those keys, rename yours with --rename_map, or enable the matching use_* flag."
+            )
+        pc = self.used_pointcloud_key
+        if pc:
+            shape = tuple(self.input_features[pc].shape)
+            if len(shape) != 2 or shape[1] not in (3, 6):
+                raise ValueError(
+                    f"'{pc}' must have shape (num_points, 3) for xyz or (num_points, 6) for xyz+rgb; got {shape}."
+                )
+            if self.use_pointcloud_color and shape[1] != 6:
+                raise ValueError(f"use_pointcloud_color=true needs a (P, 6) point cloud; '{pc}' has shape {shape}.")
+        for key in (self.used_state_key, self.used_env_state_key):
+            if key and len(self.input_features[key].shape) != 1:
+                raise ValueError(f"'{key}' must be a flat vector (D,); got shape {tuple(self.input_features[key].shape)}.")
+        images = self.used_image_keys
+        if images:
+            first = tuple(self.input_features[images[0]].shape)
+            for key in images[1:]:
+                if tuple(self.input_features[key].shape) != first:
+                    raise ValueError(f"All cameras must share one shape: '{key}' differs from '{images[0]}' {first}.")
+            if self.crop_shape is not None and self.resize_shape is None:
+                if self.crop_shape[0] > first[1] or self.crop_shape[1] > first[2]:
+                    raise ValueError(f"crop_shape {self.crop_shape} does not fit the images {first}.")
+
+    # --- LeRobot hooks -------------------------------------------------------------------------------------
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        return list(range(self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

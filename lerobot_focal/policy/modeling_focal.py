@@ -1,0 +1,239 @@
+"""`FocalPolicy`: consistency flow matching over macro-trajectories, one network evaluation per action chunk.
+
+Training (`forward`): M_1 = the expert macro-trajectory (L steps), M_0 ~ N(0, I), (τ, r) from the configured
+sampler (LAS by default), loss from `objective.consistency_loss` (FCO by default) with the consistency target
+evaluated by the EMA network θ⁻ (or the online one, per `consistency_target`).
+
+Inference (`select_action` / `predict_action_chunk`): M̂ = M_0 + (1 − ε)·v_θ(M_0, ε, o) — a single U-Net call —
+then the first H actions are executed and the policy re-plans.
+
+The EMA copy is a frozen submodule, so LeRobot's own `save_pretrained` / `from_pretrained` / Hub upload /
+`--resume` carry it without any special code; `update()` (called by `lerobot-train` after every optimizer
+step) advances it.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import deque
+
+import torch
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from lerobot.utils.constants import ACTION
+from torch import Tensor, nn
+
+from lerobot_focal.policy.configuration_focal import FocalConfig
+from lerobot_focal.policy.encoders import ObservationEncoder
+from lerobot_focal.policy.network import VelocityUnet
+from lerobot_focal.policy.objective import consistency_loss
+from lerobot_focal.policy.time_samplers import sample_times
+
+
+class FocalModel(nn.Module):
+    """Observation encoder + velocity U-Net: the unit that is trained, EMA-averaged and evaluated."""
+
+    def __init__(self, config: FocalConfig):
+        super().__init__()
+        self.obs_encoder = ObservationEncoder(config)
+        self.velocity_net = VelocityUnet(
+            action_dim=config.action_feature.shape[0],
+            global_cond_dim=self.obs_encoder.global_cond_dim,
+            down_dims=tuple(config.down_dims),
+            kernel_size=config.kernel_size,
+            n_groups=config.n_groups,
+            time_embed_dim=config.time_embed_dim,
+            use_film_scale_modulation=config.use_film_scale_modulation,
+            gradient_checkpointing=config.gradient_checkpointing,
+            time_scale=config.time_scale,
+        )
+
+    def encode(self, obs: dict[str, Tensor]) -> Tensor:
+        return self.obs_encoder(obs)
+
+    def velocity(self, m: Tensor, t: Tensor, cond: Tensor) -> Tensor:
+        return self.velocity_net(m, t, cond)
+
+
+def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, update_after_step: int = 0) -> float:
+    """DP3's EMA warm-up: 0 for the first updates, then 1 − (1 + s)^−power clipped to [min, max]."""
+    s = max(0, step - update_after_step - 1)
+    if s <= 0:
+        return 0.0
+    return max(min_decay, min(1.0 - (1.0 + s) ** -power, max_decay))
+
+
+class FocalPolicy(PreTrainedPolicy):
+    config_class = FocalConfig
+    name = "focal"
+
+    def __init__(self, config: FocalConfig, **kwargs):
+        # kwargs: make_policy passes dataset_stats= and dataset_meta=; normalisation lives in the processors.
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.model = FocalModel(config)
+        self.ema_model: FocalModel | None = None
+        if config.use_ema:
+            self.ema_model = copy.deepcopy(self.model).requires_grad_(False).eval()
+        # Number of EMA updates so far; a buffer so checkpoints and --resume keep the EMA schedule.
+        self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
+        self._objective = config.objective_spec()
+        self._sampler = config.time_sampler_spec()
+        self._obs_keys = config.used_observation_keys
+        self._queues: dict[str, deque] = {}
+        self.reset()
+
+    # --- LeRobot interface ---------------------------------------------------------------------------------
+    def get_optim_params(self) -> dict:
+        return self.model.parameters()
+
+    def reset(self) -> None:
+        """Clear observation and action queues; call on env.reset()."""
+        self._queues = {key: deque(maxlen=self.config.n_obs_steps) for key in self._obs_keys}
+        self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
+
+    def train(self, mode: bool = True) -> FocalPolicy:
+        super().train(mode)
+        if self.ema_model is not None:
+            self.ema_model.eval()  # the target/inference network never runs in training mode
+        return self
+
+    @torch.no_grad()
+    def update(self) -> None:
+        """Advance the EMA weights by one step (LeRobot calls this after every optimizer step)."""
+        if self.ema_model is None:
+            return
+        cfg = self.config
+        decay = ema_decay(
+            int(self.ema_step),
+            power=cfg.ema_power,
+            min_decay=cfg.ema_min_decay,
+            max_decay=cfg.ema_max_decay,
+            update_after_step=cfg.ema_update_after_step,
+        )
+        ema_params = list(self.ema_model.parameters())
+        online_params = list(self.model.parameters())
+        if decay == 0.0:
+            torch._foreach_copy_(ema_params, online_params)
+        else:
+            torch._foreach_lerp_(ema_params, online_params, 1.0 - decay)
+        for ema_buf, buf in zip(self.ema_model.buffers(), self.model.buffers(), strict=True):
+            ema_buf.copy_(buf)  # e.g. BatchNorm statistics are copied, not averaged
+        self.ema_step += 1
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Training loss for a batch from LeRobotDataset (observations (B, n_obs, ...), actions (B, L, d))."""
+        obs = self._observations(batch, training=True)
+        m1 = self._check_actions(batch)
+        cond = self.model.encode(obs)
+        m0 = torch.randn_like(m1)
+        tau, r = sample_times(self._sampler, m1.shape[0], device=m1.device)
+
+        def velocity(m: Tensor, t: Tensor) -> Tensor:
+            return self.model.velocity(m, t, cond)
+
+        if self.config.consistency_target == "ema":
+            assert self.ema_model is not None
+            ema = self.ema_model
+
+            def target_velocity(m: Tensor, t: Tensor) -> Tensor:
+                return ema.velocity(m, t, ema.encode(obs))
+        else:
+            def target_velocity(m: Tensor, t: Tensor) -> Tensor:
+                return self.model.velocity(m, t, cond.detach())
+
+        loss, logs = consistency_loss(self._objective, m0, m1, tau, r, velocity, target_velocity)
+        return loss, {k: v.item() for k, v in logs.items()}
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """(B, H, d) actions to execute next. Uses the observation queues when `select_action` filled them,
+        otherwise the batch itself (offline use)."""
+        if any(len(self._queues[k]) > 0 for k in self._obs_keys):
+            obs = {k: torch.stack(list(self._queues[k]), dim=1) for k in self._obs_keys}
+        else:
+            obs = self._observations(batch, training=False)
+        return self.sample_macro_trajectory(obs, noise)[:, : self.config.n_action_steps]
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action (B, d); a new chunk of H actions is generated (one network evaluation) every H calls."""
+        current = self._observations(batch, training=False, stacked=False)
+        self._queues = populate_queues(self._queues, current)
+        if len(self._queues[ACTION]) == 0:
+            actions = self.predict_action_chunk(batch, noise=noise)
+            self._queues[ACTION].extend(actions.transpose(0, 1))
+        return self._queues[ACTION].popleft()
+
+    # --- sampling ------------------------------------------------------------------------------------------
+    def sample_macro_trajectory(self, obs: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """Integrate the learned flow from noise (τ = ε) to data (τ = 1); NFE = num_inference_steps."""
+        use_ema = self.ema_model is not None and self.config.use_ema_for_inference
+        net = self.ema_model if use_ema else self.model
+        cond = net.encode(obs)
+        b = cond.shape[0]
+        shape = (b, self.config.horizon, self.config.action_feature.shape[0])
+        if noise is None:
+            x = torch.randn(shape, device=cond.device, dtype=cond.dtype)
+        else:
+            if tuple(noise.shape) != shape:
+                raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")
+            x = noise.to(device=cond.device, dtype=cond.dtype)
+        times = torch.linspace(self.config.time_eps, 1.0, self.config.num_inference_steps + 1, device=x.device)
+        for i in range(self.config.num_inference_steps):
+            t = times[i].expand(b)
+            x = x + (times[i + 1] - times[i]) * net.velocity(x, t, cond)
+        return x
+
+    # --- input checking ------------------------------------------------------------------------------------
+    def _observations(self, batch: dict[str, Tensor], *, training: bool, stacked: bool = True) -> dict[str, Tensor]:
+        """Pick the used keys, check their shapes and values, and give each a time axis (B, n_obs, ...)."""
+        obs: dict[str, Tensor] = {}
+        for key in self._obs_keys:
+            if key not in batch:
+                raise KeyError(
+                    f"FocalPolicy needs '{key}' but the batch only has {sorted(batch)}. The policy was trained with "
+                    f"{self._obs_keys}; give it the same observations (or map keys with a rename step)."
+                )
+            x = batch[key]
+            feat_shape = tuple(self.config.input_features[key].shape)
+            n = len(feat_shape)
+            if tuple(x.shape[-n:]) != feat_shape or x.ndim not in (n + 1, n + 2):
+                raise ValueError(
+                    f"'{key}' has shape {tuple(x.shape)}, expected (B, {', '.join(map(str, feat_shape))}) or "
+                    f"(B, n_obs_steps, {', '.join(map(str, feat_shape))}) as in the policy's input_features."
+                )
+            self._check_finite(key, x)
+            if stacked and x.ndim == n + 1:
+                x = x.unsqueeze(1).expand(-1, self.config.n_obs_steps, *feat_shape)
+            elif stacked and x.shape[1] != self.config.n_obs_steps:
+                raise ValueError(
+                    f"'{key}' carries {x.shape[1]} observation steps, the policy uses n_obs_steps="
+                    f"{self.config.n_obs_steps}. Check the dataset's delta_timestamps."
+                )
+            obs[key] = x
+        return obs
+
+    def _check_actions(self, batch: dict[str, Tensor]) -> Tensor:
+        if ACTION not in batch:
+            raise KeyError(f"Training batch has no '{ACTION}' (keys: {sorted(batch)}).")
+        m1 = batch[ACTION]
+        expected = (self.config.horizon, self.config.action_feature.shape[0])
+        if m1.ndim != 3 or tuple(m1.shape[1:]) != expected:
+            raise ValueError(
+                f"'{ACTION}' has shape {tuple(m1.shape)}; FocalPolicy trains on macro-trajectories of shape "
+                f"(B, L={expected[0]}, d={expected[1]}). The dataset must be loaded with the policy's "
+                "action_delta_indices (lerobot-train does this) and the action dimension must match the config."
+            )
+        self._check_finite(ACTION, m1)
+        return m1
+
+    def _check_finite(self, key: str, x: Tensor) -> None:
+        if self.config.check_finite and x.is_floating_point() and not bool(torch.isfinite(x).all()):
+            bad = int((~torch.isfinite(x)).sum())
+            raise ValueError(
+                f"'{key}' contains {bad} NaN/inf value(s) out of {x.numel()}. Fix the data source (dataset "
+                "frames, sensor driver) or the normalisation stats (e.g. a std of 0); set "
+                "policy.check_finite=false only if you handle this yourself."
+            )

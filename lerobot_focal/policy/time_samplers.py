@@ -1,0 +1,84 @@
+"""Flow-time samplers: the flow time τ and the consistency anchor r of each training sample.
+
+Convention (the paper's, opposite to LeRobot's pi0 family): τ = 0 is noise, τ = 1 is data.
+
+The sampler is what separates FocalPolicy's Locally Anchored Sampling (LAS) from FlowPolicy's adjacent-time
+consistency: LAS draws r from a logit-normal centred near the terminal time, so the target
+f_θ⁻(M_r, r) ≈ M_1 is nearly the expert trajectory itself and carries a strong, low-variance signal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+ANCHOR_SAMPLERS = ("logit_normal", "adjacent", "fixed", "mixture")
+
+
+@dataclass(frozen=True)
+class TimeSamplerSpec:
+    """Everything that decides how (τ, r) are drawn; built from `FocalConfig`."""
+
+    kind: str = "logit_normal"
+    eps: float = 0.01
+    # LAS (paper): r = sigmoid(mu + sigma * xi).
+    anchor_mu: float = 4.0
+    anchor_sigma: float = 1.6
+    # w/o LAS (FlowPolicy): r = min(τ + delta, 1).
+    adjacent_delta: float = 0.01
+    # Fixed-r ablation: r = fixed_r (the paper's ablation uses 1).
+    fixed_r: float = 1.0
+    # The authors' public code ("v0" mixture): a = σ(mu_a + sigma_a ξ₁), b = σ(mu + sigma ξ₂);
+    # r = max(a, b) with probability 1 - mixture_ratio, else min(a, b).
+    mixture_mu_a: float = 0.6
+    mixture_sigma_a: float = 1.6
+    mixture_ratio: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.kind not in ANCHOR_SAMPLERS:
+            raise ValueError(
+                f"Unknown anchor sampler {self.kind!r}. Choose one of {list(ANCHOR_SAMPLERS)} "
+                "(logit_normal = LAS, adjacent = FlowPolicy / 'w/o LAS', fixed = 'fixed r', "
+                "mixture = the authors' public code)."
+            )
+        if not 0.0 <= self.eps < 1.0:
+            raise ValueError(f"time eps must be in [0, 1), got {self.eps}.")
+        if self.anchor_sigma <= 0 or self.mixture_sigma_a <= 0:
+            raise ValueError("anchor sigmas must be positive.")
+        if not 0.0 <= self.fixed_r <= 1.0:
+            raise ValueError(f"fixed_r must be in [0, 1], got {self.fixed_r}.")
+
+
+def sample_flow_time(batch_size: int, eps: float, *, device=None, generator=None) -> Tensor:
+    """τ ~ U[eps, 1]; eps keeps τ away from pure noise, where f = M_τ + (1-τ)v has no signal."""
+    u = torch.rand(batch_size, device=device, generator=generator)
+    return eps + (1.0 - eps) * u
+
+
+def sample_anchor_time(
+    spec: TimeSamplerSpec, tau: Tensor, *, generator: torch.Generator | None = None
+) -> Tensor:
+    """Draw the anchor r for each τ according to `spec.kind`."""
+    shape, device = tau.shape, tau.device
+    if spec.kind == "logit_normal":
+        xi = torch.randn(shape, device=device, generator=generator)
+        return torch.sigmoid(spec.anchor_mu + spec.anchor_sigma * xi)
+    if spec.kind == "adjacent":
+        return torch.clamp(tau + spec.adjacent_delta, max=1.0)
+    if spec.kind == "fixed":
+        return torch.full(shape, spec.fixed_r, device=device, dtype=tau.dtype)
+    # mixture
+    a = torch.sigmoid(spec.mixture_mu_a + spec.mixture_sigma_a * torch.randn(shape, device=device, generator=generator))
+    b = torch.sigmoid(spec.anchor_mu + spec.anchor_sigma * torch.randn(shape, device=device, generator=generator))
+    take_min = torch.rand(shape, device=device, generator=generator) < spec.mixture_ratio
+    return torch.where(take_min, torch.minimum(a, b), torch.maximum(a, b))
+
+
+def sample_times(
+    spec: TimeSamplerSpec, batch_size: int, *, device=None, generator: torch.Generator | None = None
+) -> tuple[Tensor, Tensor]:
+    """Return (τ, r), each of shape (batch_size,)."""
+    tau = sample_flow_time(batch_size, spec.eps, device=device, generator=generator)
+    return tau, sample_anchor_time(spec, tau, generator=generator)
