@@ -1,0 +1,181 @@
+"""FocalPolicy's contract with LeRobot: NFE per chunk, queues, save/load, EMA, and clear errors on bad input."""
+
+import pytest
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_focal.policy import FocalConfig, FocalPolicy
+from lerobot_focal.policy.modeling_focal import ema_decay
+
+from .helpers import small_config, small_policy
+
+
+def _obs(b=2, n_obs=None, state=9, points=64):
+    shape = (b,) if n_obs is None else (b, n_obs)
+    return {
+        "observation.state": torch.randn(*shape, state),
+        "observation.pointcloud": torch.randn(*shape, points, 3),
+    }
+
+
+def _train_batch(b=4, cfg=None):
+    batch = _obs(b, n_obs=2)
+    batch["action"] = torch.randn(b, 12, 3)
+    return batch
+
+
+def test_one_network_evaluation_per_executed_chunk():
+    policy = small_policy().eval()
+    calls = []
+    policy.ema_model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+    policy.model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+    policy.reset()
+    for _ in range(3 * policy.config.n_action_steps):
+        action = policy.select_action(_obs(b=1))
+        assert action.shape == (1, 3)
+    assert len(calls) == 3  # 12 actions, H = 4 → 3 chunks → 3 evaluations
+
+
+def test_multi_step_inference_is_an_option_with_k_evaluations():
+    policy = small_policy(num_inference_steps=3).eval()
+    calls = []
+    policy.ema_model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+    policy.predict_action_chunk(_obs(b=1))
+    assert len(calls) == 3
+
+
+def test_executed_chunk_is_the_first_h_steps_of_the_macro_trajectory():
+    policy = small_policy().eval()
+    noise, current = torch.randn(1, 12, 3), _obs(b=1)
+    obs = {k: v.unsqueeze(1).expand(-1, 2, *v.shape[1:]) for k, v in current.items()}
+    full = policy.sample_macro_trajectory(obs, noise=noise)
+    chunk = policy.predict_action_chunk(current, noise=noise)
+    torch.testing.assert_close(chunk, full[:, :4])
+
+
+def test_save_and_reload_give_identical_actions(tmp_path):
+    policy = small_policy()
+    opt = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)
+    for _ in range(3):
+        loss, _ = policy.forward(_train_batch())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        policy.update()
+    policy.eval()
+    policy.save_pretrained(tmp_path)
+    loaded = FocalPolicy.from_pretrained(tmp_path).eval()
+    assert int(loaded.ema_step) == 3
+    obs, noise = _obs(b=3), torch.randn(3, 12, 3)
+    torch.testing.assert_close(policy.predict_action_chunk(obs, noise=noise), loaded.predict_action_chunk(obs, noise=noise))
+    for (k, a), (_, b) in zip(policy.state_dict().items(), loaded.state_dict().items(), strict=True):
+        torch.testing.assert_close(a, b, msg=k)
+
+
+def test_ema_update_arithmetic():
+    policy = small_policy()
+    p_online = next(policy.model.parameters())
+    p_ema = next(policy.ema_model.parameters())
+    assert not p_ema.requires_grad
+    assert all(p is not q for p in policy.get_optim_params() for q in policy.ema_model.parameters())
+    with torch.no_grad():
+        p_online.add_(1.0)
+    policy.update()  # first updates copy (decay 0)
+    torch.testing.assert_close(p_ema, p_online)
+    policy.update()
+    for step in range(2, 6):
+        before_ema, online = p_ema.clone(), p_online.clone().add_(0.5)
+        with torch.no_grad():
+            p_online.copy_(online)
+        decay = ema_decay(step, power=0.75, min_decay=0.0, max_decay=0.9999)
+        assert decay == pytest.approx(1 - (1 + step - 1) ** -0.75)
+        policy.update()
+        torch.testing.assert_close(p_ema, decay * before_ema + (1 - decay) * online)
+    assert ema_decay(10**9, power=0.75, min_decay=0.0, max_decay=0.9999) == 0.9999
+
+
+def test_online_target_does_not_touch_ema_in_forward_and_ema_target_does():
+    for target, expect_ema in (("online", False), ("ema", True)):
+        policy = small_policy(consistency_target=target, anchor_sampler="fixed", fixed_r=0.9)
+        calls = []
+        policy.ema_model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+        policy.forward(_train_batch())
+        assert bool(calls) == expect_ema
+
+
+def test_forward_returns_the_loss_parts_for_logging():
+    _, logs = small_policy().forward(_train_batch())
+    assert set(logs) == {"loss_time", "loss_freq"} and all(isinstance(v, float) for v in logs.values())
+
+
+def test_extra_dataset_features_are_ignored():
+    cfg = small_config()
+    cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (39,))
+    cfg.input_features["observation.images.depth"] = PolicyFeature(FeatureType.VISUAL, (1, 32, 32))
+    policy = FocalPolicy(cfg)
+    assert policy.config.used_observation_keys == ["observation.pointcloud", "observation.state"]
+
+
+def test_image_only_policy_trains_and_acts():
+    policy = small_policy(state=None, pointcloud=None, image=(3, 32, 32))
+    batch = {"observation.images.front": torch.rand(2, 2, 3, 32, 32), "action": torch.randn(2, 12, 3)}
+    loss, _ = policy.forward(batch)
+    loss.backward()
+    assert policy.eval().select_action({"observation.images.front": torch.rand(1, 3, 32, 32)}).shape == (1, 3)
+
+
+# --- bad input --------------------------------------------------------------------------------------------
+
+
+def test_no_usable_observation_names_what_is_needed():
+    with pytest.raises(ValueError, match=r"no observation it can use.*observation.environment_state"):
+        cfg = small_config(state=None, pointcloud=None)
+        cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (39,))
+        FocalPolicy(cfg)
+
+
+def test_bad_pointcloud_shape():
+    with pytest.raises(ValueError, match=r"num_points, 3"):
+        small_policy(pointcloud=(64, 4))
+
+
+def test_horizon_the_unet_cannot_take():
+    with pytest.raises(ValueError, match=r"multiple of 4.*L = 5·2 = 10"):
+        FocalConfig(chunk_size=5, n_chunks=2)
+
+
+def test_mismatched_batch_shapes_and_missing_keys():
+    policy = small_policy()
+    bad = _train_batch()
+    bad["observation.state"] = torch.randn(4, 2, 7)
+    with pytest.raises(ValueError, match=r"'observation.state' has shape \(4, 2, 7\)"):
+        policy.forward(bad)
+    short = _train_batch()
+    short["action"] = torch.randn(4, 8, 3)
+    with pytest.raises(ValueError, match=r"L=12"):
+        policy.forward(short)
+    missing = _train_batch()
+    del missing["observation.pointcloud"]
+    with pytest.raises(KeyError, match="observation.pointcloud"):
+        policy.forward(missing)
+
+
+def test_nan_in_a_batch_is_refused_with_its_key():
+    policy = small_policy()
+    batch = _train_batch()
+    batch["action"][0, 3, 1] = float("nan")
+    with pytest.raises(ValueError, match=r"'action' contains 1 NaN"):
+        policy.forward(batch)
+    obs = _obs(b=1)
+    obs["observation.state"][0, 0] = float("inf")
+    with pytest.raises(ValueError, match="observation.state"):
+        policy.eval().select_action(obs)
+
+
+def test_bad_method_switches():
+    with pytest.raises(ValueError, match="consistency_target"):
+        FocalConfig(consistency_target="teacher")
+    with pytest.raises(ValueError, match="use_ema"):
+        FocalConfig(use_ema=False)
+    with pytest.raises(ValueError, match="freq_band"):
+        FocalConfig(freq_band="mid")
