@@ -1,0 +1,265 @@
+"""`--robot.type=ur10e`: the UR-10e + gripper + depth camera as a LeRobot `Robot`.
+
+Actions are end-effector targets, as the focal_gamepad teleoperator records them:
+
+* ``action_mode="delta"`` (default): ``ee.dx, ee.dy, ee.dz`` (m, base frame) and ``ee.droll, ee.dpitch,
+  ee.dyaw`` (rad, extrinsic xyz rotation about the base axes through the TCP), applied to the *measured* TCP
+  pose at the time of the command; missing delta keys count as 0.
+* ``action_mode="absolute"``: ``ee.x, ee.y, ee.z, ee.roll, ee.pitch, ee.yaw`` in the base frame, angles relative
+  to the tool-pointing-down orientation (see :mod:`.kinematics`).
+* ``gripper``: commanded opening as a fraction, 1 = fully open (95 mm), 0 = closed; missing = unchanged.
+
+Every command goes through :class:`.safety.SafetyFilter` (finite check, per-step speed limit, workspace box
+clipping with counters) and kicks the :class:`.safety.Watchdog`; `send_action` returns the action that was
+really sent, in the same keys.
+
+Observations: ``<joint>.pos`` (rad), ``tcp.x .. tcp.yaw`` (same convention as absolute actions),
+``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W, 3) uint8 and ``<camera>_depth`` (H, W, 1) uint16 mm.
+
+Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
+extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
+to be stored with the dataset (:func:`.camera_info.save_camera_infos`). :meth:`pointcloud_from_depth` turns a
+depth frame into the (512, 3) ``observation.pointcloud`` with the project's shared depth->points code.
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lerobot.lerobot_types import RobotAction, RobotObservation
+from lerobot.robots.robot import Robot
+from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
+
+from .backend import ArmBackend
+from .camera_info import CameraInfo, depth_to_pointcloud
+from .config_ur10e import UR10eConfig
+from .kinematics import AG95_MAX_OPENING_M, JOINT_NAMES, apply_delta, matrix_from_pose6, pose_difference
+from .safety import RobotFaultError, SafetyFilter, UnsafeActionError, Watchdog
+
+logger = logging.getLogger(__name__)
+
+POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+DELTA_KEYS = tuple(f"ee.d{a}" for a in POSE_AXES)
+ABSOLUTE_KEYS = tuple(f"ee.{a}" for a in POSE_AXES)
+TCP_KEYS = tuple(f"tcp.{a}" for a in POSE_AXES)
+GRIPPER_KEY = "gripper"
+# Tracking error beyond which deltas re-anchor on the measured pose instead of the last target.
+_REANCHOR_M = 0.05
+_REANCHOR_RAD = 0.3
+
+
+def make_backend(config: UR10eConfig) -> ArmBackend:
+    if config.backend == "sim":
+        from .sim_backend import SimBackend
+
+        return SimBackend(config)
+    from .rtde_backend import RtdeBackend
+
+    return RtdeBackend(config)
+
+
+class UR10e(Robot):
+    """UR-10e arm with AG-95-style gripper and a depth camera; see the module docstring for keys and units."""
+
+    config_class = UR10eConfig
+    name = "ur10e"
+
+    def __init__(self, config: UR10eConfig):
+        super().__init__(config)
+        self.config = config
+        self.backend: ArmBackend | None = None
+        self.safety = SafetyFilter(config.safety, config.control_hz)
+        self.watchdog: Watchdog | None = None
+        self._gripper_cmd: float | None = None
+        self._target: np.ndarray | None = None
+
+    # -- features (valid while disconnected) ------------------------------------------------------------------
+    def _camera_shapes(self) -> dict[str, tuple[int, int, bool, bool]]:
+        """{name: (height, width, has_rgb, has_depth)} from the config alone."""
+        if self.config.backend == "sim":
+            c = self.config
+            return {c.sim_camera_name: (c.sim_camera_height, c.sim_camera_width, True, True)}
+        return {
+            name: (cfg.height, cfg.width, getattr(cfg, "use_rgb", True), getattr(cfg, "use_depth", False))
+            for name, cfg in self.config.cameras.items()
+        }
+
+    @cached_property
+    def observation_features(self) -> dict[str, type | tuple]:
+        features: dict[str, type | tuple] = {f"{j}.pos": float for j in JOINT_NAMES}
+        features.update({k: float for k in TCP_KEYS})
+        features[f"{GRIPPER_KEY}.pos"] = float
+        for name, (h, w, rgb, depth) in self._camera_shapes().items():
+            if rgb:
+                features[name] = (h, w, 3)
+            if depth:
+                features[f"{name}_depth"] = (h, w, 1)
+        return features
+
+    @cached_property
+    def action_features(self) -> dict[str, type]:
+        keys = DELTA_KEYS if self.config.action_mode == "delta" else ABSOLUTE_KEYS
+        return {**{k: float for k in keys}, GRIPPER_KEY: float}
+
+    # -- lifecycle --------------------------------------------------------------------------------------------
+    @property
+    def is_connected(self) -> bool:
+        return self.backend is not None and self.backend.is_connected
+
+    @property
+    def is_calibrated(self) -> bool:
+        return True  # the controller knows its own kinematics; nothing to calibrate from LeRobot
+
+    def calibrate(self) -> None:
+        pass
+
+    def configure(self) -> None:
+        pass
+
+    @check_if_already_connected
+    def connect(self, calibrate: bool = True) -> None:
+        backend = make_backend(self.config)
+        backend.connect()
+        self.backend = backend
+        self._target = None
+        self.watchdog = Watchdog(
+            self.config.safety.watchdog_timeout_s, on_timeout=backend.stop, health_check=backend.check_health
+        )
+        self.watchdog.start()
+        logger.info("%s connected (backend=%s).", self, self.config.backend)
+
+    @check_if_not_connected
+    def disconnect(self) -> None:
+        if self.watchdog is not None:
+            self.watchdog.stop()
+            self.watchdog = None
+        backend, self.backend = self.backend, None
+        try:
+            backend.stop()
+        except Exception:  # noqa: BLE001 - the connection may already be gone; disconnect anyway
+            logger.exception("Stopping the UR10e during disconnect failed")
+        backend.disconnect()
+        logger.info("%s disconnected.", self)
+
+    # -- safety helpers ---------------------------------------------------------------------------------------
+    @property
+    def safety_counters(self) -> dict[str, int]:
+        """Clipped / rejected commands and watchdog stops since construction (for logs and tests)."""
+        counters = self.safety.counters.as_dict()
+        if self.watchdog is not None:
+            counters["watchdog_stops"] = self.watchdog.trips
+        return counters
+
+    def _ensure_healthy(self) -> None:
+        """Raise RobotFaultError (after stopping the arm) if the backend or the watchdog saw a fault."""
+        try:
+            self.watchdog.raise_if_faulted()
+            self.backend.check_health()
+        except RobotFaultError:
+            self._stop_quietly()
+            raise
+
+    def _stop_quietly(self) -> None:
+        self._target = None
+        try:
+            self.backend.stop()
+        except Exception:  # noqa: BLE001 - already reporting a fault; the stop is best effort
+            logger.exception("UR10e stop failed")
+
+    # -- observation ------------------------------------------------------------------------------------------
+    @check_if_not_connected
+    def get_observation(self) -> RobotObservation:
+        self._ensure_healthy()
+        state = self.backend.read_state()
+        obs: dict[str, Any] = {f"{j}.pos": float(v) for j, v in zip(JOINT_NAMES, state.q, strict=True)}
+        obs.update({k: float(v) for k, v in zip(TCP_KEYS, state.tcp_pose, strict=True)})
+        obs[f"{GRIPPER_KEY}.pos"] = float(state.gripper_opening_m / AG95_MAX_OPENING_M)
+        for name, (rgb, depth) in self.backend.read_cameras().items():
+            if rgb is not None:
+                obs[name] = rgb
+            if depth is not None:
+                obs[f"{name}_depth"] = depth
+        return obs
+
+    def camera_infos(self) -> dict[str, CameraInfo]:
+        """Intrinsics + base-frame extrinsics of each depth camera (needed to unproject stored depth)."""
+        if self.backend is None:
+            raise RuntimeError(f"{self} is not connected: camera intrinsics are read from the running camera.")
+        return self.backend.camera_infos()
+
+    def pointcloud_from_depth(self, depth: np.ndarray, camera: str | None = None) -> np.ndarray:
+        """(N, 3) float32 base-frame point cloud (N = config.pointcloud_num_points) from a `{camera}_depth` frame."""
+        infos = self.camera_infos()
+        name = camera or next(iter(infos))
+        c = self.config
+        return depth_to_pointcloud(depth, infos[name], c.pointcloud_min, c.pointcloud_max, c.pointcloud_num_points)
+
+    # -- action -----------------------------------------------------------------------------------------------
+    def _parse(self, action: RobotAction) -> tuple[str, np.ndarray, float | None]:
+        values = {k: float(v) for k, v in action.items() if k in (*DELTA_KEYS, *ABSOLUTE_KEYS, GRIPPER_KEY)}
+        try:
+            self.safety.check_finite(values)
+        except UnsafeActionError:
+            self._stop_quietly()
+            raise
+        has_abs = any(k in values for k in ABSOLUTE_KEYS)
+        has_delta = any(k in values for k in DELTA_KEYS)
+        if has_abs and has_delta:
+            raise ValueError("UR10e action mixes absolute (ee.x ...) and delta (ee.dx ...) keys; send one kind.")
+        gripper = values.get(GRIPPER_KEY)
+        if has_abs:
+            missing = [k for k in ABSOLUTE_KEYS if k not in values]
+            if missing:
+                raise ValueError(f"UR10e absolute action is missing {missing}; send all of {list(ABSOLUTE_KEYS)}.")
+            return "absolute", np.array([values[k] for k in ABSOLUTE_KEYS]), gripper
+        return "delta", np.array([values.get(k, 0.0) for k in DELTA_KEYS]), gripper
+
+    def _reference_pose(self, measured: np.ndarray) -> np.ndarray:
+        """Pose that deltas and the step limit are relative to: the last commanded target while tracking.
+
+        Composing with the last target (not the measured pose) keeps tracking lag from accumulating into drift;
+        after a stop, a watchdog trip or a large tracking error (a collision) it re-anchors on the measured pose.
+        """
+        target = self._target
+        if target is None or self.watchdog.tripped:
+            return measured
+        dpos, drot = pose_difference(target, measured)
+        if np.linalg.norm(dpos) > _REANCHOR_M or np.linalg.norm(drot) > _REANCHOR_RAD:
+            return measured
+        return target
+
+    @check_if_not_connected
+    def send_action(self, action: RobotAction) -> RobotAction:
+        self._ensure_healthy()
+        mode, vec, gripper = self._parse(action)
+        current = self._reference_pose(self.backend.read_state().tcp_pose)
+        target = apply_delta(current, vec) if mode == "delta" else vec
+        safe = self.safety.limit(target, current)
+        self._target = safe
+        try:
+            self.backend.servo_tcp(safe)
+            if gripper is not None:
+                self._gripper_cmd = float(np.clip(gripper, 0.0, 1.0))
+                self.backend.set_gripper(self._gripper_cmd * AG95_MAX_OPENING_M)
+        except RobotFaultError:
+            self._stop_quietly()
+            raise
+        self.watchdog.kick()
+
+        sent: dict[str, float] = {}
+        if mode == "delta":
+            p_s, r_s = matrix_from_pose6(safe)
+            p_c, r_c = matrix_from_pose6(current)
+            rot = (Rotation.from_matrix(r_s) * Rotation.from_matrix(r_c).inv()).as_euler("xyz")
+            sent.update(zip(DELTA_KEYS, [*(p_s - p_c), *rot], strict=True))
+        else:
+            sent.update(zip(ABSOLUTE_KEYS, safe, strict=True))
+        sent = {k: float(v) for k, v in sent.items()}
+        if self._gripper_cmd is not None:
+            sent[GRIPPER_KEY] = self._gripper_cmd
+        return sent

@@ -1,0 +1,104 @@
+"""Configuration of ``--teleop.type=focal_gamepad``.
+
+The button/axis numbers are SDL joystick indices as pygame reports them. The defaults are the Logitech F710 in
+XInput mode (switch on the controller's back at "X") on Linux, where the kernel's ``xpad`` driver exposes it:
+
+======  ====================  =====================================================================
+Index   Physical control      Use
+======  ====================  =====================================================================
+axis 0  left stick X          dy (translation) / droll (rotation mode)
+axis 1  left stick Y          dx (translation) / dpitch (rotation mode)
+axis 2  LT (-1 rest, +1 full) open the gripper
+axis 3  right stick X         dyaw
+axis 4  right stick Y         dz
+axis 5  RT (-1 rest, +1 full) close the gripper
+btn 0   A                     toggle gripper fully open / fully closed
+btn 1   B                     end episode: failure
+btn 2   X                     end episode: re-record
+btn 3   Y                     end episode: success
+btn 4   LB                    deadman: nothing moves unless held
+btn 5   RB                    rotation mode: left stick gives roll/pitch instead of x/y
+btn 6   Back                  (unused)
+btn 7   Start                 (unused)
+btn 8   Logitech (guide)      (unused)
+btn 9   left stick click      (unused)
+btn 10  right stick click     (unused)
+hat 0   D-pad                 up / down: next / previous speed level
+======  ====================  =====================================================================
+
+On Windows (XInput through SDL) the F710 reports axes as LX 0, LY 1, RX 2, RY 3, LT 4, RT 5 and buttons
+A 0, B 1, X 2, Y 3, LB 4, RB 5, Back 6, Start 7, LS 8, RS 9: set ``mapping`` accordingly, e.g.
+``--teleop.mapping.right_x_axis=2 --teleop.mapping.right_y_axis=3 --teleop.mapping.left_trigger_axis=4``.
+In DirectInput mode (switch at "D") the layout differs again; use XInput.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.teleoperators.config import TeleoperatorConfig
+
+
+@dataclass
+class GamepadMapping:
+    """Which SDL axis/button/hat index drives each function (defaults: F710, XInput mode, Linux)."""
+
+    left_x_axis: int = 0
+    left_y_axis: int = 1
+    left_trigger_axis: int = 2
+    right_x_axis: int = 3
+    right_y_axis: int = 4
+    right_trigger_axis: int = 5
+    gripper_toggle_button: int = 0  # A
+    failure_button: int = 1  # B
+    rerecord_button: int = 2  # X
+    success_button: int = 3  # Y
+    deadman_button: int = 4  # LB
+    rotation_button: int = 5  # RB
+    speed_hat: int = 0  # D-pad
+
+
+@TeleoperatorConfig.register_subclass("focal_gamepad")
+@dataclass
+class FocalGamepadConfig(TeleoperatorConfig):
+    # Which joystick: the first whose name contains `name_contains` (case-insensitive) if set, else this index.
+    joystick_index: int = 0
+    name_contains: str | None = None
+    # Stick deflection below this is treated as zero; the rest is rescaled so output is continuous from 0.
+    deadzone: float = 0.12
+    # Deltas per get_action() call at full deflection and speed factor 1.0. The robot applies one delta per
+    # control step, so at 30 fps 0.005 m/step is 15 cm/s.
+    max_translation_step_m: float = 0.005
+    max_rotation_step_rad: float = 0.03
+    # Speed factors the D-pad cycles through; starts at `initial_speed_level` (an index into the list).
+    speed_levels: list[float] = field(default_factory=lambda: [0.25, 0.5, 1.0])
+    initial_speed_level: int = 1
+    # Gripper command is an opening fraction (1 = open, 0 = closed); a held trigger moves it by this per call.
+    gripper_step: float = 0.05
+    initial_gripper: float = 1.0
+    # A trigger counts as pressed above this (0 = rest, 1 = fully pressed). F710 triggers read mid-range until
+    # first touched after connection, so keep this above 0.5.
+    trigger_threshold: float = 0.6
+    # Multiplies each output (dx, dy, dz, droll, dpitch, dyaw) to flip a direction without remapping.
+    signs: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    # What a gamepad that disappears does: "raise" (GamepadDisconnectedError from get_action) or "zero"
+    # (log an error, return zero deltas and the last gripper command until the same pad is plugged back in).
+    on_disconnect: str = "raise"
+    mapping: GamepadMapping = field(default_factory=GamepadMapping)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.deadzone < 1.0:
+            raise ValueError(f"focal_gamepad deadzone must be in [0, 1), got {self.deadzone}")
+        if not self.speed_levels or any(s <= 0 for s in self.speed_levels):
+            raise ValueError(f"focal_gamepad speed_levels must be positive factors, got {self.speed_levels}")
+        if not 0 <= self.initial_speed_level < len(self.speed_levels):
+            raise ValueError(
+                f"focal_gamepad initial_speed_level {self.initial_speed_level} is not an index into "
+                f"speed_levels {self.speed_levels}"
+            )
+        if len(self.signs) != 6:
+            raise ValueError(f"focal_gamepad signs needs 6 entries (dx dy dz droll dpitch dyaw), got {self.signs}")
+        if not 0.0 <= self.initial_gripper <= 1.0:
+            raise ValueError(f"focal_gamepad initial_gripper must be in [0, 1], got {self.initial_gripper}")
+        if self.on_disconnect not in ("raise", "zero"):
+            raise ValueError(f"focal_gamepad on_disconnect must be 'raise' or 'zero', got {self.on_disconnect!r}")

@@ -1,0 +1,92 @@
+"""The rtde backend's boundary without hardware: import safety and controller-state checks."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from lerobot_focal.robots.ur10e import UR10e, UR10eConfig
+from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
+from lerobot_focal.robots.ur10e.safety import RobotFaultError
+
+
+def test_missing_ur_rtde_names_the_extra(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "rtde_control", None)  # makes `import rtde_control` raise ImportError
+    robot = UR10e(UR10eConfig(backend="rtde", calibration_dir=tmp_path))
+    assert "tcp.x" in robot.observation_features  # features still work without the package
+    with pytest.raises(ImportError, match=r"lerobot_policy_focal\[robot\]"):
+        robot.connect()
+
+
+def test_real_cameras_need_a_hand_eye_pose():
+    from lerobot.cameras.realsense import RealSenseCameraConfig
+
+    cam = RealSenseCameraConfig(serial_number_or_name="123", fps=30, width=640, height=480, use_depth=True)
+    with pytest.raises(ValueError, match="camera_poses"):
+        UR10eConfig(backend="rtde", cameras={"front": cam})
+    cfg = UR10eConfig(backend="rtde", cameras={"front": cam}, camera_poses={"front": [0, 0, 1, 0, 0, 0]})
+    feats = UR10e(cfg).observation_features
+    assert feats["front"] == (480, 640, 3) and feats["front_depth"] == (480, 640, 1)
+
+
+def test_ur_rotvec_round_trip():
+    pose = np.array([-0.6, -0.17, 0.4, 0.1, -0.2, 0.3])
+    np.testing.assert_allclose(pose6_from_rotvec_pose(rotvec_pose_from_pose6(pose)), pose, atol=1e-9)
+    # tool pointing straight down is UR's [.., pi, 0, 0] rotation vector and our zero orientation
+    np.testing.assert_allclose(pose6_from_rotvec_pose([0, 0, 0, np.pi, 0, 0])[3:], 0.0, atol=1e-9)
+
+
+class _FakeReceive:
+    """Smallest stand-in for RTDEReceiveInterface's health queries."""
+
+    def __init__(self, connected=True, protective=False, estop=False, mode=1):
+        self.connected, self.protective, self.estop, self.mode = connected, protective, estop, mode
+
+    def isConnected(self):  # noqa: N802 - ur_rtde's name
+        return self.connected
+
+    def isProtectiveStopped(self):  # noqa: N802
+        return self.protective
+
+    def isEmergencyStopped(self):  # noqa: N802
+        return self.estop
+
+    def getSafetyMode(self):  # noqa: N802
+        return self.mode
+
+
+class _FakeControl:
+    def __init__(self):
+        self.calls = []
+
+    def isConnected(self):  # noqa: N802
+        return True
+
+    def servoStop(self):  # noqa: N802
+        self.calls.append("servoStop")
+
+    def speedStop(self):  # noqa: N802
+        self.calls.append("speedStop")
+
+
+@pytest.mark.parametrize(
+    ("recv", "message"),
+    [
+        (_FakeReceive(connected=False), "lost the RTDE connection"),
+        (_FakeReceive(protective=True), "protective stop"),
+        (_FakeReceive(estop=True), "emergency stop"),
+        (_FakeReceive(mode=5), "SAFEGUARD_STOP"),
+    ],
+)
+def test_health_checks_name_the_fault(recv, message):
+    pytest.importorskip("rtde_control")
+    from lerobot_focal.robots.ur10e.rtde_backend import RtdeBackend
+
+    backend = RtdeBackend(UR10eConfig(backend="rtde"))
+    backend.recv, backend.ctrl = recv, _FakeControl()
+    with pytest.raises(RobotFaultError, match=message):
+        backend.check_health()
+    backend.stop()
+    assert backend.ctrl.calls == ["servoStop", "speedStop"]
