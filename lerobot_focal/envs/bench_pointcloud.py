@@ -1,0 +1,77 @@
+"""Point-cloud observations per second, end to end (ray cast + back-project + crop + voxel + FPS).
+
+    python -m lerobot_focal.envs.bench_pointcloud [--task pick-place-v3] [--frames 30] [--runs 5]
+
+Frames are taken at distinct states of a random-action rollout (the arm moves, so every frame is new work);
+the env's own physics step is excluded. Prints the median over runs, for each setting measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import mujoco
+import numpy as np
+
+from .metaworld_env import FocalMetaworldEnv
+from .pointcloud import PointCloudSpec
+from .raycast_camera import RayCastPointCloudSensor
+
+
+def _record_states(env: FocalMetaworldEnv, frames: int, seed: int) -> list[np.ndarray]:
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    model, data = env._env.model, env._env.data
+    states = []
+    size = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    for _ in range(frames):
+        env._env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        state = np.empty(size)
+        mujoco.mj_getState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        states.append(state)
+    return states
+
+
+def measure(task: str, frames: int, runs: int, threads: int, voxel_size: float, seed: int = 0) -> tuple[float, int]:
+    """Median observations/s over ``runs`` passes of ``frames`` distinct states; also the cast-ray count."""
+    env = FocalMetaworldEnv(task=task, obs_type="state")
+    env._ensure_env()
+    spec = PointCloudSpec(num_points=512, bounds=env.pointcloud_spec.bounds, voxel_size=voxel_size)
+    sensor = RayCastPointCloudSensor(env._env.model, env.camera_name, spec, 128, 128, num_threads=threads)
+    states = _record_states(env, frames, seed)
+    model, data = env._env.model, env._env.data
+    rates = []
+    for _ in range(runs):
+        elapsed = 0.0
+        for state in states:
+            mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+            mujoco.mj_forward(model, data)
+            start = time.perf_counter()
+            cloud = sensor(data)
+            elapsed += time.perf_counter() - start
+            assert cloud.shape == (512, 3)
+        rates.append(len(states) / elapsed)
+    sensor.close()
+    env.close()
+    return float(np.median(rates)), sensor.camera.num_cast_rays
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="pick-place-v3")
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args(argv)
+    load = os.getloadavg()[0]
+    print(f"MetaWorld {args.task}, camera corner2, 128x128 rays -> 512 points; {os.cpu_count()} cores, load {load:.2f}")
+    for threads in (1, 2):
+        for voxel in (0.0, 0.01):
+            rate, rays = measure(args.task, args.frames, args.runs, threads, voxel)
+            label = "exact FPS" if voxel == 0 else f"voxel {voxel * 100:.0f} cm + FPS"
+            print(f"threads={threads} {label:<18} rays cast={rays:5d}  {rate:6.1f} obs/s  ({1e3 / rate:5.1f} ms/obs)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,156 @@
+"""MetaWorld v3 gym env with DP3 observations: 9-d state, 512-point cloud, optional RGB.
+
+Built on LeRobot's ``MetaworldEnv`` so that seeding, task descriptions, the scripted expert
+(``expert_policy``), success reporting (``info["is_success"]``, terminate on first success, ``final_info``)
+and ``lerobot-eval``'s expectations stay exactly LeRobot's; only env construction and observation
+formatting differ.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import metaworld
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from lerobot.envs.metaworld import MetaworldEnv
+
+from .common import (
+    AGENT_POS_KEY,
+    DEFAULT_VOXEL_SIZE,
+    PIXELS_KEY,
+    POINTCLOUD_KEY,
+    check_obs_type,
+    uses_pixels,
+    uses_pointcloud,
+    uses_state,
+)
+from .focal_metaworld import (
+    DEFAULT_WORKSPACE_HIGH,
+    DEFAULT_WORKSPACE_LOW,
+    DP3_CORNER2_POS,
+    METAWORLD_STATE_DIM,
+)
+from .pointcloud import PointCloudSpec, WorkspaceBounds
+from .raycast_camera import RayCastPointCloudSensor
+
+
+class FocalMetaworldEnv(MetaworldEnv):
+    """One MetaWorld v3 task; ``obs_type`` in {state, pointcloud, pixels, pixels_agent_pos}."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 80}
+
+    def __init__(
+        self,
+        task: str,
+        obs_type: str = "pointcloud",
+        camera_name: str = "corner2",
+        camera_pos: tuple[float, float, float] | None = DP3_CORNER2_POS,
+        episode_length: int = 200,
+        observation_width: int = 128,
+        observation_height: int = 128,
+        num_points: int = 512,
+        depth_width: int = 128,
+        depth_height: int = 128,
+        workspace_low: tuple[float, float, float] = DEFAULT_WORKSPACE_LOW,
+        workspace_high: tuple[float, float, float] = DEFAULT_WORKSPACE_HIGH,
+        voxel_size: float = DEFAULT_VOXEL_SIZE,
+        raycast_threads: int | None = None,
+        visualization_width: int = 640,
+        visualization_height: int = 480,
+    ) -> None:
+        check_obs_type(obs_type)
+        # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
+        super().__init__(
+            task=task,
+            camera_name=camera_name,
+            obs_type="pixels",
+            render_mode="rgb_array",
+            observation_width=observation_width,
+            observation_height=observation_height,
+            visualization_width=visualization_width,
+            visualization_height=visualization_height,
+        )
+        self.obs_type = obs_type
+        self.camera_pos = camera_pos
+        self._max_episode_steps = episode_length
+        self.pointcloud_spec = PointCloudSpec(
+            num_points=num_points, bounds=WorkspaceBounds(workspace_low, workspace_high), voxel_size=voxel_size
+        )
+        self.depth_size = (depth_height, depth_width)
+        self.raycast_threads = raycast_threads
+        self._pc_sensor: RayCastPointCloudSensor | None = None
+
+        obs_spaces: dict[str, spaces.Space] = {}
+        if uses_state(obs_type):
+            obs_spaces[AGENT_POS_KEY] = spaces.Box(-1000.0, 1000.0, (METAWORLD_STATE_DIM,), np.float32)
+        if uses_pointcloud(obs_type):
+            obs_spaces[POINTCLOUD_KEY] = spaces.Box(-10.0, 10.0, (num_points, 3), np.float32)
+        if uses_pixels(obs_type):
+            obs_spaces[PIXELS_KEY] = spaces.Box(0, 255, (observation_height, observation_width, 3), np.uint8)
+        self.observation_space = spaces.Dict(obs_spaces)
+
+    def _ensure_env(self) -> None:
+        """LeRobot's lazy construction, plus render size, DP3 camera pose, and the episode length.
+
+        Kept lazy (first reset) as in LeRobot so AsyncVectorEnv workers build their own MuJoCo state.
+        """
+        if self._env is not None:
+            return
+        mt1 = metaworld.MT1(self._env_name, seed=42)
+        env = mt1.train_classes[self._env_name](
+            render_mode="rgb_array",
+            camera_name=self.camera_name,
+            width=self.observation_width,
+            height=self.observation_height,
+        )
+        env.set_task(mt1.train_tasks[0])
+        env.max_path_length = self._max_episode_steps  # MetaWorld then reports truncated at this step
+        if self.camera_pos is not None:
+            cam_id = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_CAMERA, self.camera_name)
+            env.model.cam_pos[cam_id] = self.camera_pos
+        env.reset()
+        env._freeze_rand_vec = False  # otherwise every reset has the same object positions
+        env.seeded_rand_vec = True  # reset(seed=X) controls object positions
+        self._env = env
+        if uses_pointcloud(self.obs_type):
+            self._pc_sensor = RayCastPointCloudSensor(
+                env.model,
+                self.camera_name,
+                self.pointcloud_spec,
+                width=self.depth_size[1],
+                height=self.depth_size[0],
+                num_threads=self.raycast_threads,
+            )
+
+    def agent_pos(self) -> np.ndarray:
+        """DP3's 9-d state: hand position, then right and left finger-pad sites."""
+        data = self._env.data
+        return np.concatenate(
+            [
+                self._env.get_endeff_pos(),
+                data.site("rightEndEffector").xpos,
+                data.site("leftEndEffector").xpos,
+            ]
+        ).astype(np.float32)
+
+    def pointcloud(self) -> np.ndarray:
+        assert self._pc_sensor is not None, "point cloud requested but obs_type is not 'pointcloud'"
+        return self._pc_sensor(self._env.data)
+
+    def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, Any]:
+        obs: dict[str, Any] = {}
+        if uses_state(self.obs_type):
+            obs[AGENT_POS_KEY] = self.agent_pos()
+        if uses_pointcloud(self.obs_type):
+            obs[POINTCLOUD_KEY] = self.pointcloud()
+        if uses_pixels(self.obs_type):
+            obs[PIXELS_KEY] = np.ascontiguousarray(self.render())
+        return obs
+
+    def close(self) -> None:
+        if self._pc_sensor is not None:
+            self._pc_sensor.close()
+        super().close()
