@@ -15,7 +15,7 @@ from lerobot_focal.robots.ur10e.safety import RobotFaultError
 def test_missing_ur_rtde_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "rtde_control", None)  # makes `import rtde_control` raise ImportError
     robot = UR10e(UR10eConfig(backend="rtde", calibration_dir=tmp_path))
-    assert "tcp.x" in robot.observation_features  # features still work without the package
+    assert "ee_x.pos" in robot.observation_features  # features still work without the package
     with pytest.raises(ImportError, match=r"lerobot_policy_focal\[robot\]"):
         robot.connect()
 

@@ -18,7 +18,7 @@ from lerobot_focal.robots.ur10e.safety import RobotFaultError, SafetyConfig  # n
 
 
 def _tcp(obs: dict) -> np.ndarray:
-    return np.array([obs[f"tcp.{a}"] for a in ("x", "y", "z", "roll", "pitch", "yaw")])
+    return np.array([obs[f"ee_{a}.pos"] for a in ("x", "y", "z", "roll", "pitch", "yaw")])
 
 
 @pytest.fixture
@@ -47,9 +47,15 @@ def test_make_robot_from_config_returns_ur10e(tmp_path):
     # Features are known while disconnected.
     assert not robot.is_connected
     assert robot.observation_features["front_depth"] == (128, 128, 1)
-    assert list(robot.action_features) == ["ee.dx", "ee.dy", "ee.dz", "ee.droll", "ee.dpitch", "ee.dyaw", "gripper"]
+    assert list(robot.action_features) == [
+        "ee_x.vel", "ee_y.vel", "ee_z.vel", "ee_roll.vel", "ee_pitch.vel", "ee_yaw.vel", "gripper.pos"
+    ]  # fmt: skip
+    # lerobot-rollout only routes robot features ending in .pos / .vel to and from the policy.
+    assert all(k.endswith((".pos", ".vel")) for k in robot.action_features)
+    assert all(k.endswith(".pos") for k, ft in robot.observation_features.items() if ft is float)
     abs_robot = UR10e(UR10eConfig(backend="sim", action_mode="absolute", calibration_dir=tmp_path))
-    assert "ee.x" in abs_robot.action_features
+    assert list(abs_robot.action_features)[:6] == [f"ee_{a}.pos" for a in ("x", "y", "z", "roll", "pitch", "yaw")]
+    assert len(robot.cameras) == 1  # lerobot-record sizes its image writer with len(robot.cameras)
 
 
 def test_bad_config_is_rejected():
@@ -80,14 +86,14 @@ def test_observation_shapes_and_dtypes(robot):
 
 def test_delta_moves_tcp_toward_target(robot):
     start = _tcp(robot.get_observation())
-    sent = _run(robot, {"ee.dx": 0.004, "ee.dz": -0.004}, 25)
+    sent = _run(robot, {"ee_x.vel": 0.12, "ee_z.vel": -0.12}, 25)  # 4 mm per step at 30 Hz
     time.sleep(0.3)
     end = _tcp(robot.get_observation())
     moved = end[:3] - start[:3]
     assert moved[0] > 0.06 and moved[2] < -0.06, moved
     assert abs(moved[1]) < 0.01
     np.testing.assert_allclose(end[3:], start[3:], atol=0.02)  # orientation held while translating
-    assert sent["ee.dx"] == pytest.approx(0.004, abs=1e-9)
+    assert sent["ee_x.vel"] == pytest.approx(0.12, abs=1e-7)
     assert robot.safety_counters["workspace_clips"] == 0
 
 
@@ -98,7 +104,7 @@ def test_absolute_target_and_rotation(tmp_path):
         goal = _tcp(r.get_observation())
         goal[1] += 0.05
         goal[5] += 0.2
-        act = dict(zip([f"ee.{a}" for a in ("x", "y", "z", "roll", "pitch", "yaw")], goal, strict=True))
+        act = dict(zip([f"ee_{a}.pos" for a in ("x", "y", "z", "roll", "pitch", "yaw")], goal, strict=True))
         _run(r, act, 20)
         time.sleep(0.5)
         end = _tcp(r.get_observation())
@@ -114,56 +120,56 @@ def test_target_outside_workspace_is_clipped_and_counted(robot):
     # At the nominal rate the step limit allows 0.25 m/s: ~1.6 s from home (z ~ 0.4 m) to the floor. Bound the
     # loop by steps, not by wall time, so a busy host only makes it slower, not flaky.
     for _ in range(400):
-        sent = robot.send_action({"ee.dz": -0.05})
+        sent = robot.send_action({"ee_z.vel": -1.5})
         time.sleep(1.0 / robot.config.control_hz)
         if robot.safety_counters["workspace_clips"] >= 3:
             break
     assert robot.safety_counters["workspace_clips"] >= 3
-    assert robot.safety_counters["step_clips"] > 0  # 5 cm per step is beyond the speed limit too
+    assert robot.safety_counters["step_clips"] > 0  # 1.5 m/s is beyond the speed limit too
     assert robot._target[2] == pytest.approx(lo)
-    assert abs(sent["ee.dz"]) <= robot.config.safety.max_linear_speed / robot.config.control_hz + 1e-9
+    assert abs(sent["ee_z.vel"]) <= robot.config.safety.max_linear_speed + 1e-7
     time.sleep(0.5)
     assert _tcp(robot.get_observation())[2] >= lo - 5e-3
 
 
 def test_nan_action_raises_and_stops(robot):
-    _run(robot, {"ee.dx": 0.008}, 5)
+    _run(robot, {"ee_x.vel": 0.24}, 5)
     with pytest.raises(UnsafeActionError, match="non-finite"):
-        robot.send_action({"ee.dx": float("nan"), "gripper": 1.0})
+        robot.send_action({"ee_x.vel": float("nan"), "gripper.pos": 1.0})
     assert robot.safety_counters["rejected_actions"] == 1
     time.sleep(0.3)
     v = np.abs(robot.backend.joint_velocities()).max()
     assert v < 0.02, v
     with pytest.raises(UnsafeActionError):
-        robot.send_action({"ee.dy": float("inf")})
+        robot.send_action({"ee_y.vel": float("inf")})
 
 
 def test_watchdog_stops_arm_when_commands_stop(robot):
-    _run(robot, {"ee.dx": 0.008}, 5)
+    _run(robot, {"ee_x.vel": 0.24}, 5)
     assert robot.safety_counters["watchdog_stops"] == 0
     time.sleep(robot.config.safety.watchdog_timeout_s + 0.4)
     assert robot.safety_counters["watchdog_stops"] == 1
     assert robot.watchdog.tripped
     np.testing.assert_allclose(robot.backend._q_des, robot.backend._q_set)
     assert np.abs(robot.backend.joint_velocities()).max() < 0.02
-    robot.send_action({"ee.dx": 0.0})  # a new command re-arms it
+    robot.send_action({"ee_x.vel": 0.0})  # a new command re-arms it
     assert not robot.watchdog.tripped
 
 
 def test_fault_stops_and_raises_clear_error(robot):
     robot.backend.inject_fault("protective stop")
     with pytest.raises(RobotFaultError, match="protective stop"):
-        robot.send_action({"ee.dx": 0.001})
+        robot.send_action({"ee_x.vel": 0.03})
     with pytest.raises(RobotFaultError):
         robot.get_observation()
 
 
 def test_gripper_opens_and_closes(robot):
     assert robot.get_observation()["gripper.pos"] < 0.05
-    _run(robot, {"gripper": 1.0}, 20)
+    _run(robot, {"gripper.pos": 1.0}, 20)
     time.sleep(0.3)
     assert robot.get_observation()["gripper.pos"] > 0.95
-    _run(robot, {"gripper": 0.3}, 20)
+    _run(robot, {"gripper.pos": 0.3}, 20)
     time.sleep(0.3)
     assert robot.get_observation()["gripper.pos"] == pytest.approx(0.3, abs=0.03)
 

@@ -21,12 +21,12 @@ from lerobot.teleoperators.utils import TeleopEvents, make_teleoperator_from_con
 from lerobot.utils.errors import DeviceNotConnectedError  # noqa: E402
 from lerobot_focal.teleoperators import FocalGamepad, FocalGamepadConfig  # noqa: E402
 from lerobot_focal.teleoperators.focal_gamepad import (  # noqa: E402
-    DELTA_NAMES,
+    VELOCITY_NAMES,
     GamepadDisconnectedError,
 )
 from lerobot_focal.teleoperators.focal_gamepad.focal_gamepad import apply_deadzone  # noqa: E402
 
-T, R = 0.005, 0.03  # default max translation / rotation step
+T, R = 0.15, 0.9  # default max linear (m/s) / angular (rad/s) speed
 
 
 @pytest.fixture
@@ -49,14 +49,14 @@ def teleop(pad, tmp_path):
 
 
 def _deltas(action: dict) -> list[float]:
-    return [action[name] for name in DELTA_NAMES]
+    return [action[name] for name in VELOCITY_NAMES]
 
 
 def test_registered_and_built_by_lerobot_factory(tmp_path):
     config = TeleoperatorConfig.get_choice_class("focal_gamepad")(calibration_dir=tmp_path)
     teleop = make_teleoperator_from_config(config)
     assert isinstance(teleop, FocalGamepad)
-    assert list(teleop.action_features) == [*DELTA_NAMES, "gripper"]
+    assert list(teleop.action_features) == [*VELOCITY_NAMES, "gripper.pos"]
     assert all(t is float for t in teleop.action_features.values())
 
 
@@ -66,26 +66,26 @@ def test_no_motion_without_deadman(pad, teleop):
     pad.set_axis(F710.RT, 1.0)
     action = teleop.get_action()
     assert _deltas(action) == [0.0] * 6
-    assert action["gripper"] == 1.0
+    assert action["gripper.pos"] == 1.0
     assert teleop.get_teleop_events()[TeleopEvents.IS_INTERVENTION] is False
 
 
 @pytest.mark.parametrize(
     ("axis", "value", "expected"),
     [
-        (F710.LEFT_Y, -1.0, {"ee.dx": T}),  # stick forward: +x
-        (F710.LEFT_Y, 1.0, {"ee.dx": -T}),
-        (F710.LEFT_X, -1.0, {"ee.dy": T}),  # stick left: +y
-        (F710.RIGHT_Y, -1.0, {"ee.dz": T}),  # right stick up: +z
-        (F710.RIGHT_X, -1.0, {"ee.dyaw": R}),  # right stick left: +yaw
+        (F710.LEFT_Y, -1.0, {"ee_x.vel": T}),  # stick forward: +x
+        (F710.LEFT_Y, 1.0, {"ee_x.vel": -T}),
+        (F710.LEFT_X, -1.0, {"ee_y.vel": T}),  # stick left: +y
+        (F710.RIGHT_Y, -1.0, {"ee_z.vel": T}),  # right stick up: +z
+        (F710.RIGHT_X, -1.0, {"ee_yaw.vel": R}),  # right stick left: +yaw
     ],
 )
 def test_axis_to_delta_mapping_and_sign(pad, teleop, axis, value, expected):
     pad.set_button(F710Button.LB, True)
     pad.set_axis(axis, value)
     action = teleop.get_action()
-    full = dict.fromkeys(DELTA_NAMES, 0.0) | {k: v * 0.5 for k, v in expected.items()}  # speed level 1 = 0.5
-    assert _deltas(action) == pytest.approx([full[n] for n in DELTA_NAMES], abs=1e-6)
+    full = dict.fromkeys(VELOCITY_NAMES, 0.0) | {k: v * 0.5 for k, v in expected.items()}  # speed level 1 = 0.5
+    assert _deltas(action) == pytest.approx([full[n] for n in VELOCITY_NAMES], abs=1e-4)
     assert teleop.get_teleop_events()[TeleopEvents.IS_INTERVENTION] is True
 
 
@@ -95,9 +95,9 @@ def test_rotation_mode_turns_left_stick_into_roll_pitch(pad, teleop):
     pad.set_axis(F710.LEFT_X, 1.0)
     pad.set_axis(F710.LEFT_Y, -1.0)
     action = teleop.get_action()
-    assert action["ee.dx"] == 0.0 and action["ee.dy"] == 0.0
-    assert action["ee.droll"] == pytest.approx(R * 0.5, abs=1e-6)
-    assert action["ee.dpitch"] == pytest.approx(R * 0.5, abs=1e-6)
+    assert action["ee_x.vel"] == 0.0 and action["ee_y.vel"] == 0.0
+    assert action["ee_roll.vel"] == pytest.approx(R * 0.5, abs=1e-4)
+    assert action["ee_pitch.vel"] == pytest.approx(R * 0.5, abs=1e-4)
 
 
 def test_deadzone_and_release_give_exact_zero(pad, teleop):
@@ -105,9 +105,9 @@ def test_deadzone_and_release_give_exact_zero(pad, teleop):
     pad.set_axis(F710.LEFT_Y, -0.1)  # inside the default 0.12 deadzone: stick drift
     assert _deltas(teleop.get_action()) == [0.0] * 6
     pad.set_axis(F710.LEFT_Y, -0.56)
-    assert teleop.get_action()["ee.dx"] == pytest.approx(apply_deadzone(0.56, 0.12) * T * 0.5, abs=1e-5)
+    assert teleop.get_action()["ee_x.vel"] == pytest.approx(apply_deadzone(0.56, 0.12) * T * 0.5, abs=1e-4)
     pad.set_axis(F710.LEFT_Y, -1.0)
-    assert teleop.get_action()["ee.dx"] > 0
+    assert teleop.get_action()["ee_x.vel"] > 0
     pad.set_button(F710Button.LB, False)  # deadman released mid-motion, stick still pushed
     assert _deltas(teleop.get_action()) == [0.0] * 6
 
@@ -121,37 +121,37 @@ def test_deadzone_is_continuous():
 def test_dpad_changes_speed_level(pad, teleop):
     pad.set_button(F710Button.LB, True)
     pad.set_axis(F710.LEFT_Y, -1.0)
-    assert teleop.get_action()["ee.dx"] == pytest.approx(T * 0.5, abs=1e-6)
+    assert teleop.get_action()["ee_x.vel"] == pytest.approx(T * 0.5, abs=1e-4)
     pad.set_hat(0, (0, 1))
     pad.pump()
     pad.set_hat(0, (0, 0))
-    assert teleop.get_action()["ee.dx"] == pytest.approx(T * 1.0, abs=1e-6)
+    assert teleop.get_action()["ee_x.vel"] == pytest.approx(T * 1.0, abs=1e-4)
     pad.set_hat(0, (0, 1))  # already at the top level: stays
-    assert teleop.get_action()["ee.dx"] == pytest.approx(T * 1.0, abs=1e-6)
+    assert teleop.get_action()["ee_x.vel"] == pytest.approx(T * 1.0, abs=1e-4)
     for _ in range(3):
         pad.set_hat(0, (0, 0))
         pad.pump()
         pad.set_hat(0, (0, -1))
         pad.pump()
-    assert teleop.get_action()["ee.dx"] == pytest.approx(T * 0.25, abs=1e-6)
+    assert teleop.get_action()["ee_x.vel"] == pytest.approx(T * 0.25, abs=1e-4)
     assert teleop.speed_level == 0
 
 
 def test_gripper_triggers_toggle_and_deadman(pad, teleop):
     pad.set_axis(F710.RT, 1.0)
-    assert teleop.get_action()["gripper"] == 1.0  # deadman released: gripper holds
+    assert teleop.get_action()["gripper.pos"] == 1.0  # deadman released: gripper holds
     pad.set_button(F710Button.LB, True)
-    values = [teleop.get_action()["gripper"] for _ in range(3)]
+    values = [teleop.get_action()["gripper.pos"] for _ in range(3)]
     assert values == pytest.approx([0.95, 0.90, 0.85])
     pad.set_axis(F710.RT, -1.0)
     pad.set_axis(F710.LT, 1.0)
-    assert teleop.get_action()["gripper"] == pytest.approx(0.90)
+    assert teleop.get_action()["gripper.pos"] == pytest.approx(0.90)
     pad.set_axis(F710.LT, 0.0)  # F710 triggers read mid-range until first touched: must not count as pressed
-    assert teleop.get_action()["gripper"] == pytest.approx(0.90)
+    assert teleop.get_action()["gripper.pos"] == pytest.approx(0.90)
     pad.press(F710Button.A)
-    assert teleop.get_action()["gripper"] == 0.0
+    assert teleop.get_action()["gripper.pos"] == 0.0
     pad.press(F710Button.A)
-    assert teleop.get_action()["gripper"] == 1.0
+    assert teleop.get_action()["gripper.pos"] == 1.0
 
 
 def test_episode_events_latch_until_read(pad, teleop):
@@ -171,7 +171,7 @@ def test_episode_events_latch_until_read(pad, teleop):
 def test_unplugged_pad_raises_clear_error(pad, teleop):
     pad.set_button(F710Button.LB, True)
     pad.set_axis(F710.LEFT_Y, -1.0)
-    assert teleop.get_action()["ee.dx"] > 0
+    assert teleop.get_action()["ee_x.vel"] > 0
     pad.detach()
     with pytest.raises(GamepadDisconnectedError, match="disconnected.*reconnect"):
         teleop.get_action()
@@ -186,15 +186,15 @@ def test_unplugged_pad_in_zero_mode_stops_motion_and_recovers(tmp_path):
     try:
         pad.set_button(F710Button.LB, True)
         pad.set_axis(F710.LEFT_Y, -1.0)
-        assert teleop.get_action()["ee.dx"] > 0
+        assert teleop.get_action()["ee_x.vel"] > 0
         pad.detach()
         action = teleop.get_action()
-        assert _deltas(action) == [0.0] * 6 and action["gripper"] == 1.0
+        assert _deltas(action) == [0.0] * 6 and action["gripper.pos"] == 1.0
         pad.attach()  # plugged back in, at rest: no motion until the deadman is pressed again
         assert _deltas(teleop.get_action()) == [0.0] * 6
         pad.set_button(F710Button.LB, True)
         pad.set_axis(F710.LEFT_X, 1.0)
-        assert teleop.get_action()["ee.dy"] < 0
+        assert teleop.get_action()["ee_y.vel"] < 0
     finally:
         teleop.disconnect()
         pad.detach()
@@ -212,9 +212,9 @@ def test_custom_mapping_and_signs(pad, tmp_path):
     try:
         pad.set_button(F710Button.LB, True)
         pad.set_axis(F710.LEFT_Y, -1.0)
-        assert teleop.get_action()["ee.dx"] == 0.0  # LB is no longer the deadman
+        assert teleop.get_action()["ee_x.vel"] == 0.0  # LB is no longer the deadman
         pad.set_button(F710Button.RB, True)
-        assert teleop.get_action()["ee.dx"] == pytest.approx(-T, abs=1e-6)
+        assert teleop.get_action()["ee_x.vel"] == pytest.approx(-T, abs=1e-4)
     finally:
         teleop.disconnect()
 

@@ -10,7 +10,7 @@ from lerobot.robots.config import RobotConfig
 from .safety import SafetyConfig
 
 BACKENDS = ("sim", "rtde")
-ACTION_MODES = ("delta", "absolute")
+ACTION_MODES = ("velocity", "absolute")
 
 
 @RobotConfig.register_subclass("ur10e")
@@ -23,9 +23,11 @@ class UR10eConfig(RobotConfig):
     """
 
     backend: str = "sim"
-    # "delta": ee.dx..ee.dyaw (what the gamepad records); "absolute": ee.x..ee.yaw targets. Plus `gripper`.
-    action_mode: str = "delta"
-    # Nominal command rate; the per-command step limit is speed / control_hz, so match --fps of lerobot-record.
+    # "velocity": ee_x.vel..ee_yaw.vel in m/s, rad/s (what the gamepad records); "absolute": ee_x.pos..ee_yaw.pos
+    # TCP targets. Plus `gripper.pos` (opening fraction).
+    action_mode: str = "velocity"
+    # Nominal command rate: velocities are integrated over 1 / control_hz and the per-command step limit is
+    # speed / control_hz, so set it to the --fps of lerobot-record / lerobot-rollout.
     control_hz: float = 30.0
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     # Flange -> TCP distance along the tool z axis (fingertip centre of the AG-95 at ~0.16 m).

@@ -1,20 +1,23 @@
 """`--robot.type=ur10e`: the UR-10e + gripper + depth camera as a LeRobot `Robot`.
 
-Actions are end-effector targets, as the focal_gamepad teleoperator records them:
+Actions are end-effector commands, as the focal_gamepad teleoperator records them. Every key ends in
+``.pos`` or ``.vel`` because ``lerobot-rollout`` (0.6.1) only routes robot features with those suffixes to and
+from a policy:
 
-* ``action_mode="delta"`` (default): ``ee.dx, ee.dy, ee.dz`` (m, base frame) and ``ee.droll, ee.dpitch,
-  ee.dyaw`` (rad, extrinsic xyz rotation about the base axes through the TCP), applied to the *measured* TCP
-  pose at the time of the command; missing delta keys count as 0.
-* ``action_mode="absolute"``: ``ee.x, ee.y, ee.z, ee.roll, ee.pitch, ee.yaw`` in the base frame, angles relative
-  to the tool-pointing-down orientation (see :mod:`.kinematics`).
-* ``gripper``: commanded opening as a fraction, 1 = fully open (95 mm), 0 = closed; missing = unchanged.
+* ``action_mode="velocity"`` (default): ``ee_x.vel, ee_y.vel, ee_z.vel`` (m/s, base frame) and ``ee_roll.vel,
+  ee_pitch.vel, ee_yaw.vel`` (rad/s, about the base axes through the TCP). Each command is integrated over one
+  control period (``1 / control_hz``) into a TCP target relative to the current target; missing keys count as 0.
+* ``action_mode="absolute"``: ``ee_x.pos, ee_y.pos, ee_z.pos, ee_roll.pos, ee_pitch.pos, ee_yaw.pos`` in the
+  base frame, angles relative to the tool-pointing-down orientation (see :mod:`.kinematics`). Absolute keys are
+  accepted in either mode (that is how ``lerobot-rollout`` returns the arm to its start pose).
+* ``gripper.pos``: commanded opening as a fraction, 1 = fully open (95 mm), 0 = closed; missing = unchanged.
 
 Every command goes through :class:`.safety.SafetyFilter` (finite check, per-step speed limit, workspace box
 clipping with counters) and kicks the :class:`.safety.Watchdog`; `send_action` returns the action that was
 really sent, in the same keys.
 
-Observations: ``<joint>.pos`` (rad), ``tcp.x .. tcp.yaw`` (same convention as absolute actions),
-``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W, 3) uint8 and ``<camera>_depth`` (H, W, 1) uint16 mm.
+Observations: ``<joint>.pos`` (rad), ``ee_x.pos .. ee_yaw.pos`` (measured TCP pose, same names and convention
+as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W, 3) uint8 and ``<camera>_depth`` (H, W, 1) uint16 mm.
 
 Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
 extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
@@ -44,10 +47,10 @@ from .safety import RobotFaultError, SafetyFilter, UnsafeActionError, Watchdog
 logger = logging.getLogger(__name__)
 
 POSE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
-DELTA_KEYS = tuple(f"ee.d{a}" for a in POSE_AXES)
-ABSOLUTE_KEYS = tuple(f"ee.{a}" for a in POSE_AXES)
-TCP_KEYS = tuple(f"tcp.{a}" for a in POSE_AXES)
-GRIPPER_KEY = "gripper"
+VELOCITY_KEYS = tuple(f"ee_{a}.vel" for a in POSE_AXES)
+ABSOLUTE_KEYS = tuple(f"ee_{a}.pos" for a in POSE_AXES)
+TCP_KEYS = ABSOLUTE_KEYS  # the measured pose uses the names of the absolute command
+GRIPPER_KEY = "gripper.pos"
 # Tracking error beyond which deltas re-anchor on the measured pose instead of the last target.
 _REANCHOR_M = 0.05
 _REANCHOR_RAD = 0.3
@@ -89,11 +92,20 @@ class UR10e(Robot):
             for name, cfg in self.config.cameras.items()
         }
 
+    @property
+    def cameras(self) -> dict[str, Any]:
+        """{name: camera} — LeRobot's real camera objects on the rtde backend while connected, else the names
+        (with None). lerobot-record / lerobot-rollout size their image writers with ``len(robot.cameras)``."""
+        live = getattr(self.backend, "cameras", None)
+        if isinstance(live, dict) and live:
+            return live
+        return dict.fromkeys(self._camera_shapes())
+
     @cached_property
     def observation_features(self) -> dict[str, type | tuple]:
         features: dict[str, type | tuple] = {f"{j}.pos": float for j in JOINT_NAMES}
         features.update({k: float for k in TCP_KEYS})
-        features[f"{GRIPPER_KEY}.pos"] = float
+        features[GRIPPER_KEY] = float
         for name, (h, w, rgb, depth) in self._camera_shapes().items():
             if rgb:
                 features[name] = (h, w, 3)
@@ -103,7 +115,7 @@ class UR10e(Robot):
 
     @cached_property
     def action_features(self) -> dict[str, type]:
-        keys = DELTA_KEYS if self.config.action_mode == "delta" else ABSOLUTE_KEYS
+        keys = VELOCITY_KEYS if self.config.action_mode == "velocity" else ABSOLUTE_KEYS
         return {**{k: float for k in keys}, GRIPPER_KEY: float}
 
     # -- lifecycle --------------------------------------------------------------------------------------------
@@ -178,7 +190,7 @@ class UR10e(Robot):
         state = self.backend.read_state()
         obs: dict[str, Any] = {f"{j}.pos": float(v) for j, v in zip(JOINT_NAMES, state.q, strict=True)}
         obs.update({k: float(v) for k, v in zip(TCP_KEYS, state.tcp_pose, strict=True)})
-        obs[f"{GRIPPER_KEY}.pos"] = float(state.gripper_opening_m / AG95_MAX_OPENING_M)
+        obs[GRIPPER_KEY] = float(state.gripper_opening_m / AG95_MAX_OPENING_M)
         for name, (rgb, depth) in self.backend.read_cameras().items():
             if rgb is not None:
                 obs[name] = rgb
@@ -201,23 +213,24 @@ class UR10e(Robot):
 
     # -- action -----------------------------------------------------------------------------------------------
     def _parse(self, action: RobotAction) -> tuple[str, np.ndarray, float | None]:
-        values = {k: float(v) for k, v in action.items() if k in (*DELTA_KEYS, *ABSOLUTE_KEYS, GRIPPER_KEY)}
+        values = {k: float(v) for k, v in action.items() if k in (*VELOCITY_KEYS, *ABSOLUTE_KEYS, GRIPPER_KEY)}
         try:
             self.safety.check_finite(values)
         except UnsafeActionError:
             self._stop_quietly()
             raise
         has_abs = any(k in values for k in ABSOLUTE_KEYS)
-        has_delta = any(k in values for k in DELTA_KEYS)
-        if has_abs and has_delta:
-            raise ValueError("UR10e action mixes absolute (ee.x ...) and delta (ee.dx ...) keys; send one kind.")
+        has_vel = any(k in values for k in VELOCITY_KEYS)
+        if has_abs and has_vel:
+            raise ValueError("UR10e action mixes absolute (ee_x.pos ...) and velocity (ee_x.vel ...) keys; send one kind.")
         gripper = values.get(GRIPPER_KEY)
         if has_abs:
             missing = [k for k in ABSOLUTE_KEYS if k not in values]
             if missing:
                 raise ValueError(f"UR10e absolute action is missing {missing}; send all of {list(ABSOLUTE_KEYS)}.")
             return "absolute", np.array([values[k] for k in ABSOLUTE_KEYS]), gripper
-        return "delta", np.array([values.get(k, 0.0) for k in DELTA_KEYS]), gripper
+        dt = 1.0 / self.config.control_hz
+        return "delta", np.array([values.get(k, 0.0) * dt for k in VELOCITY_KEYS]), gripper
 
     def _reference_pose(self, measured: np.ndarray) -> np.ndarray:
         """Pose that deltas and the step limit are relative to: the last commanded target while tracking.
@@ -256,7 +269,7 @@ class UR10e(Robot):
             p_s, r_s = matrix_from_pose6(safe)
             p_c, r_c = matrix_from_pose6(current)
             rot = (Rotation.from_matrix(r_s) * Rotation.from_matrix(r_c).inv()).as_euler("xyz")
-            sent.update(zip(DELTA_KEYS, [*(p_s - p_c), *rot], strict=True))
+            sent.update(zip(VELOCITY_KEYS, np.array([*(p_s - p_c), *rot]) * self.config.control_hz, strict=True))
         else:
             sent.update(zip(ABSOLUTE_KEYS, safe, strict=True))
         sent = {k: float(v) for k, v in sent.items()}

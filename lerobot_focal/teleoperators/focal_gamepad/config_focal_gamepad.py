@@ -6,11 +6,11 @@ XInput mode (switch on the controller's back at "X") on Linux, where the kernel'
 ======  ====================  =====================================================================
 Index   Physical control      Use
 ======  ====================  =====================================================================
-axis 0  left stick X          dy (translation) / droll (rotation mode)
-axis 1  left stick Y          dx (translation) / dpitch (rotation mode)
+axis 0  left stick X          y (translation) / roll (rotation mode)
+axis 1  left stick Y          x (translation) / pitch (rotation mode)
 axis 2  LT (-1 rest, +1 full) open the gripper
-axis 3  right stick X         dyaw
-axis 4  right stick Y         dz
+axis 3  right stick X         yaw
+axis 4  right stick Y         z
 axis 5  RT (-1 rest, +1 full) close the gripper
 btn 0   A                     toggle gripper fully open / fully closed
 btn 1   B                     end episode: failure
@@ -66,10 +66,10 @@ class FocalGamepadConfig(TeleoperatorConfig):
     name_contains: str | None = None
     # Stick deflection below this is treated as zero; the rest is rescaled so output is continuous from 0.
     deadzone: float = 0.12
-    # Deltas per get_action() call at full deflection and speed factor 1.0. The robot applies one delta per
-    # control step, so at 30 fps 0.005 m/step is 15 cm/s.
-    max_translation_step_m: float = 0.005
-    max_rotation_step_rad: float = 0.03
+    # TCP velocities at full deflection and speed factor 1.0 (m/s, rad/s). The robot's safety filter caps them
+    # again at its own limits (SafetyConfig.max_linear_speed / max_angular_speed).
+    max_linear_speed: float = 0.15
+    max_angular_speed: float = 0.9
     # Speed factors the D-pad cycles through; starts at `initial_speed_level` (an index into the list).
     speed_levels: list[float] = field(default_factory=lambda: [0.25, 0.5, 1.0])
     initial_speed_level: int = 1
@@ -79,7 +79,7 @@ class FocalGamepadConfig(TeleoperatorConfig):
     # A trigger counts as pressed above this (0 = rest, 1 = fully pressed). F710 triggers read mid-range until
     # first touched after connection, so keep this above 0.5.
     trigger_threshold: float = 0.6
-    # Multiplies each output (dx, dy, dz, droll, dpitch, dyaw) to flip a direction without remapping.
+    # Multiplies each output (x, y, z, roll, pitch, yaw velocities) to flip a direction without remapping.
     signs: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
     # What a gamepad that disappears does: "raise" (GamepadDisconnectedError from get_action) or "zero"
     # (log an error, return zero deltas and the last gripper command until the same pad is plugged back in).
@@ -97,7 +97,7 @@ class FocalGamepadConfig(TeleoperatorConfig):
                 f"speed_levels {self.speed_levels}"
             )
         if len(self.signs) != 6:
-            raise ValueError(f"focal_gamepad signs needs 6 entries (dx dy dz droll dpitch dyaw), got {self.signs}")
+            raise ValueError(f"focal_gamepad signs needs 6 entries (x y z roll pitch yaw), got {self.signs}")
         if not 0.0 <= self.initial_gripper <= 1.0:
             raise ValueError(f"focal_gamepad initial_gripper must be in [0, 1], got {self.initial_gripper}")
         if self.on_disconnect not in ("raise", "zero"):

@@ -3,21 +3,22 @@
 LeRobot's own ``gamepad`` teleoperator gives xyz + gripper only; the UR-10e demos need orientation too, and a
 deadman so that a dropped or bumped pad never moves the arm.
 
-Action (what :meth:`FocalGamepad.get_action` returns; the UR-10e robot consumes it as end-effector delta targets):
+Action (what :meth:`FocalGamepad.get_action` returns; the UR-10e robot, ``action_mode=velocity``, integrates the
+velocities over one control period into end-effector targets). The names end in ``.vel`` / ``.pos`` because
+``lerobot-rollout`` only routes robot features with those suffixes to a policy:
 
-=============  ========================================================================================
-``ee.dx``      translation along the robot base X axis, metres per control step
-``ee.dy``      ... base Y, metres per step (left stick pushed left = +Y)
-``ee.dz``      ... base Z, metres per step (right stick pushed up = +Z)
-``ee.droll``   rotation about base X, radians per step (rotation mode, left stick right = +)
-``ee.dpitch``  rotation about base Y, radians per step (rotation mode, left stick forward = +)
-``ee.dyaw``    rotation about base Z, radians per step (right stick left = +)
-``gripper``    commanded gripper opening as a fraction: 1 = fully open, 0 = fully closed (absolute, not a delta)
-=============  ========================================================================================
+===============  ======================================================================================
+``ee_x.vel``     TCP velocity along the robot base X axis, m/s (left stick forward = +X)
+``ee_y.vel``     ... base Y, m/s (left stick pushed left = +Y)
+``ee_z.vel``     ... base Z, m/s (right stick pushed up = +Z)
+``ee_roll.vel``  angular velocity about base X, rad/s (rotation mode, left stick right = +)
+``ee_pitch.vel`` angular velocity about base Y, rad/s (rotation mode, left stick forward = +)
+``ee_yaw.vel``   angular velocity about base Z, rad/s (right stick left = +)
+``gripper.pos``  commanded gripper opening as a fraction: 1 = fully open, 0 = fully closed (absolute)
+===============  ======================================================================================
 
-The six deltas are exactly zero unless the deadman button is held, and the gripper command does not change
-while it is released. Rotations are small-angle increments about the base axes; the robot composes them with
-its current target orientation. The button/axis map is in :mod:`.config_focal_gamepad`.
+The six velocities are exactly zero unless the deadman button is held, and the gripper command does not change
+while it is released. The button/axis map is in :mod:`.config_focal_gamepad`.
 
 pygame is imported at :meth:`connect`, not at import time, because every ``lerobot-*`` command imports this
 plugin and most of them never touch a gamepad.
@@ -40,8 +41,8 @@ from .config_focal_gamepad import FocalGamepadConfig
 
 logger = logging.getLogger(__name__)
 
-DELTA_NAMES = ("ee.dx", "ee.dy", "ee.dz", "ee.droll", "ee.dpitch", "ee.dyaw")
-GRIPPER_NAME = "gripper"
+VELOCITY_NAMES = ("ee_x.vel", "ee_y.vel", "ee_z.vel", "ee_roll.vel", "ee_pitch.vel", "ee_yaw.vel")
+GRIPPER_NAME = "gripper.pos"
 
 _HAT_UP, _HAT_DOWN = 1, -1
 
@@ -89,7 +90,7 @@ class FocalGamepad(Teleoperator):
     # ------------------------------------------------------------------ LeRobot interface
     @property
     def action_features(self) -> dict[str, type]:
-        return {**{name: float for name in DELTA_NAMES}, GRIPPER_NAME: float}
+        return {**{name: float for name in VELOCITY_NAMES}, GRIPPER_NAME: float}
 
     @property
     def feedback_features(self) -> dict:
@@ -155,7 +156,7 @@ class FocalGamepad(Teleoperator):
     @check_if_not_connected
     def get_action(self) -> RobotAction:
         self._poll()
-        zeros = dict.fromkeys(DELTA_NAMES, 0.0)
+        zeros = dict.fromkeys(VELOCITY_NAMES, 0.0)
         if self._lost:
             return {**zeros, GRIPPER_NAME: self.gripper}
         js, m = self._joystick, self.config.mapping
@@ -170,10 +171,10 @@ class FocalGamepad(Teleoperator):
             apply_deadzone(js.get_axis(m.right_y_axis), dz),
             rotation_mode=bool(js.get_button(m.rotation_button)),
         )
-        steps = [self.config.max_translation_step_m] * 3 + [self.config.max_rotation_step_rad] * 3
+        steps = [self.config.max_linear_speed] * 3 + [self.config.max_angular_speed] * 3
         action = {
             name: float(u * step * sign * self.speed_factor) + 0.0  # + 0.0 turns -0.0 into 0.0
-            for name, u, step, sign in zip(DELTA_NAMES, unit, steps, self.config.signs, strict=True)
+            for name, u, step, sign in zip(VELOCITY_NAMES, unit, steps, self.config.signs, strict=True)
         }
 
         if self._trigger(m.right_trigger_axis):
