@@ -11,6 +11,8 @@ from gymnasium import spaces
 from .common import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
+    EpisodeMetrics,
+    ensure_offscreen_gl,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -59,11 +61,15 @@ class FocalAdroitEnv(gym.Env):
         terminate_on_success: bool = True,
         voxel_size: float = DEFAULT_VOXEL_SIZE,
         raycast_threads: int | None = None,
+        metrics_path: str | None = None,
     ) -> None:
         super().__init__()
         if task not in ADROIT_TASKS:
             raise ValueError(f"unknown Adroit task {task!r}; valid tasks: {', '.join(ADROIT_TASKS)}")
         check_obs_type(obs_type)
+        if uses_pixels(obs_type):
+            ensure_offscreen_gl()
+        self.metrics = EpisodeMetrics(task, metrics_path)
         self.task = task
         self.task_description = TASK_DESCRIPTIONS[task]
         self.obs_type = obs_type
@@ -143,6 +149,7 @@ class FocalAdroitEnv(gym.Env):
         super().reset(seed=seed)
         self._env.reset(seed=seed)
         self._steps = 0
+        self.metrics.start(seed)
         return self._obs(), {"is_success": False}
 
     def step(self, action: np.ndarray):
@@ -150,6 +157,7 @@ class FocalAdroitEnv(gym.Env):
         action = np.asarray(action)
         if action.shape != self.action_space.shape:
             raise ValueError(f"expected action of shape {self.action_space.shape}, got {action.shape}")
+        self.metrics.step(action)
         _, reward, terminated, _, info = self._env.step(action)
         self._steps += 1
         is_success = bool(info.get("success", info.get("goal_achieved", False)))
@@ -157,7 +165,9 @@ class FocalAdroitEnv(gym.Env):
         truncated = self._steps >= self._max_episode_steps
         info = {**info, "task": self.task, "is_success": is_success}
         if terminated or truncated:
-            info["final_info"] = {"task": self.task, "done": True, "is_success": is_success}
+            atv = self.metrics.finish(is_success)["action_total_variation"]
+            info["action_total_variation"] = atv
+            info["final_info"] = {"task": self.task, "done": True, "is_success": is_success, "action_total_variation": atv}
         return self._obs(), float(reward), terminated, truncated, info
 
     def close(self) -> None:

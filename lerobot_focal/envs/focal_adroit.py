@@ -71,6 +71,8 @@ class FocalAdroitEnvConfig(EnvConfig):
     # Voxel grid (m) applied before FPS for speed; 0 = exact DP3 recipe (FPS over all cropped points).
     voxel_size: float = DEFAULT_VOXEL_SIZE
     raycast_threads: int | None = None
+    # Append one JSON line per finished episode (task, seed, success, length, action_total_variation) here.
+    metrics_path: str | None = None
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=env_features_map)
 
@@ -105,6 +107,7 @@ class FocalAdroitEnvConfig(EnvConfig):
             "terminate_on_success": self.terminate_on_success,
             "voxel_size": self.voxel_size,
             "raycast_threads": self.raycast_threads,
+            "metrics_path": self.metrics_path,
         }
 
     def make_single_env(self, task: str | None = None) -> FocalAdroitEnv:
@@ -116,6 +119,8 @@ class FocalAdroitEnvConfig(EnvConfig):
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
         if not isinstance(n_envs, int) or n_envs <= 0:
             raise ValueError(f"n_envs must be a positive int; got {n_envs}")
+        from lerobot.envs.utils import freeze_after_episode_end
+
         from .adroit_env import FocalAdroitEnv
 
         env_cls = _make_vec_env_cls(use_async_envs, n_envs)
@@ -123,7 +128,7 @@ class FocalAdroitEnvConfig(EnvConfig):
         extra = {"context": "forkserver"} if env_cls is gym.vector.AsyncVectorEnv else {}
         out: dict[str, dict[int, gym.vector.VectorEnv]] = {}
         for name in self.tasks:
-            fns = [(lambda tn=name: FocalAdroitEnv(task=tn, **kwargs)) for _ in range(n_envs)]
+            fns = [freeze_after_episode_end(lambda tn=name: FocalAdroitEnv(task=tn, **kwargs)) for _ in range(n_envs)]
             out[name] = {0: env_cls(fns, **extra)}
         return out
 

@@ -83,10 +83,12 @@ class FocalMetaworldEnvConfig(EnvConfig):
     depth_height: int = 128
     workspace_low: tuple[float, float, float] = DEFAULT_WORKSPACE_LOW
     workspace_high: tuple[float, float, float] = DEFAULT_WORKSPACE_HIGH
-    # Threads per env for ray casting; None = min(2, cores). Use 1 with many async envs.
     # Voxel grid (m) applied before FPS for speed; 0 = exact DP3 recipe (FPS over all cropped points).
     voxel_size: float = DEFAULT_VOXEL_SIZE
+    # Threads per env for ray casting (None = 1, the fastest here with 2 busy cores).
     raycast_threads: int | None = None
+    # Append one JSON line per finished episode (task, seed, success, length, action_total_variation) here.
+    metrics_path: str | None = None
     multitask_eval: bool = True
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=env_features_map)
@@ -118,6 +120,7 @@ class FocalMetaworldEnvConfig(EnvConfig):
             "workspace_high": tuple(self.workspace_high),
             "voxel_size": self.voxel_size,
             "raycast_threads": self.raycast_threads,
+            "metrics_path": self.metrics_path,
         }
 
     def make_single_env(self, task: str | None = None) -> FocalMetaworldEnv:
@@ -133,7 +136,7 @@ class FocalMetaworldEnvConfig(EnvConfig):
         """Same {group: {task_id: VectorEnv}} layout as LeRobot's ``create_metaworld_envs``."""
         if not isinstance(n_envs, int) or n_envs <= 0:
             raise ValueError(f"n_envs must be a positive int; got {n_envs}")
-        from lerobot.envs.utils import _LazyAsyncVectorEnv
+        from lerobot.envs.utils import _LazyAsyncVectorEnv, freeze_after_episode_end
 
         from .metaworld_env import FocalMetaworldEnv
 
@@ -143,7 +146,7 @@ class FocalMetaworldEnvConfig(EnvConfig):
         cached: tuple | None = None
         for group, tasks in self.tasks_by_group.items():
             for tid, name in enumerate(tasks):
-                fns = [(lambda tn=name: FocalMetaworldEnv(task=tn, **kwargs)) for _ in range(n_envs)]
+                fns = [freeze_after_episode_end(lambda tn=name: FocalMetaworldEnv(task=tn, **kwargs)) for _ in range(n_envs)]
                 if env_cls is gym.vector.AsyncVectorEnv:
                     lazy = _LazyAsyncVectorEnv(fns, *(cached or (None, None, None)))
                     cached = cached or (lazy.observation_space, lazy.action_space, lazy.metadata)

@@ -20,6 +20,8 @@ from lerobot.envs.metaworld import MetaworldEnv
 from .common import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
+    EpisodeMetrics,
+    ensure_offscreen_gl,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -60,8 +62,11 @@ class FocalMetaworldEnv(MetaworldEnv):
         raycast_threads: int | None = None,
         visualization_width: int = 640,
         visualization_height: int = 480,
+        metrics_path: str | None = None,
     ) -> None:
         check_obs_type(obs_type)
+        if uses_pixels(obs_type):
+            ensure_offscreen_gl()
         # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
         super().__init__(
             task=task,
@@ -82,6 +87,8 @@ class FocalMetaworldEnv(MetaworldEnv):
         self.depth_size = (depth_height, depth_width)
         self.raycast_threads = raycast_threads
         self._pc_sensor: RayCastPointCloudSensor | None = None
+        self.metrics = EpisodeMetrics(self.task, metrics_path)
+        self.last_raw_obs: np.ndarray | None = None  # MetaWorld's 39-d observation, what its experts read
 
         obs_spaces: dict[str, spaces.Space] = {}
         if uses_state(obs_type):
@@ -140,7 +147,14 @@ class FocalMetaworldEnv(MetaworldEnv):
         assert self._pc_sensor is not None, "point cloud requested but obs_type is not 'pointcloud'"
         return self._pc_sensor(self._env.data)
 
+    def expert_action(self) -> np.ndarray:
+        """MetaWorld's scripted expert (``metaworld.policies``) for the current state, clipped to [-1, 1]."""
+        if self.last_raw_obs is None:
+            raise RuntimeError("reset the env before asking the expert for an action")
+        return np.clip(self.expert_policy.get_action(self.last_raw_obs), -1.0, 1.0).astype(np.float32)
+
     def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, Any]:
+        self.last_raw_obs = np.asarray(raw_obs, dtype=np.float64)
         obs: dict[str, Any] = {}
         if uses_state(self.obs_type):
             obs[AGENT_POS_KEY] = self.agent_pos()
@@ -149,6 +163,39 @@ class FocalMetaworldEnv(MetaworldEnv):
         if uses_pixels(self.obs_type):
             obs[PIXELS_KEY] = np.ascontiguousarray(self.render())
         return obs
+
+    def reset(self, seed: int | None = None, **kwargs) -> tuple[dict[str, Any], dict[str, Any]]:
+        observation, info = super().reset(seed=seed, **kwargs)
+        self.metrics.start(seed)
+        return observation, info
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        """LeRobot's success semantics (terminate on first success, ``final_info``), plus episode metrics.
+
+        Unlike LeRobot's ``MetaworldEnv`` this does not reset itself at termination: vector envs autoreset,
+        and a single env is reset by its caller, so the terminal observation stays the real one.
+        """
+        self._ensure_env()
+        action = np.asarray(action, dtype=np.float32)
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"expected an action of shape {self.action_space.shape}, got {action.shape}")
+        self.metrics.step(action)
+        raw_obs, reward, done, truncated, info = self._env.step(action)
+        is_success = bool(info.get("success", 0))
+        terminated = bool(done) or is_success
+        truncated = bool(truncated)
+        info = {**info, "task": self.task, "done": bool(done), "is_success": is_success}
+        observation = self._format_raw_obs(raw_obs)
+        if terminated or truncated:
+            record = self.metrics.finish(is_success)
+            info["action_total_variation"] = record["action_total_variation"]
+            info["final_info"] = {
+                "task": self.task,
+                "done": True,
+                "is_success": is_success,
+                "action_total_variation": record["action_total_variation"],
+            }
+        return observation, float(reward), terminated, truncated, info
 
     def close(self) -> None:
         if self._pc_sensor is not None:

@@ -1,0 +1,182 @@
+"""Real MuJoCo sims: every env type x obs type resets and steps with the declared shapes; success is reported."""
+
+import json
+
+import numpy as np
+import pytest
+
+from lerobot_focal.envs.common import OBS_TYPES, action_total_variation
+
+pytest.importorskip("metaworld")
+
+EXPECTED_KEYS = {
+    "state": {"agent_pos"},
+    "pointcloud": {"agent_pos", "pointcloud"},
+    "pixels": {"pixels"},
+    "pixels_agent_pos": {"pixels", "agent_pos"},
+}
+
+
+def _check_obs(env, obs, state_dim, image_hw):
+    assert set(obs) == EXPECTED_KEYS[env.obs_type]
+    assert env.observation_space.contains(obs)
+    if "agent_pos" in obs:
+        assert obs["agent_pos"].shape == (state_dim,) and obs["agent_pos"].dtype == np.float32
+        assert np.all(np.isfinite(obs["agent_pos"]))
+    if "pointcloud" in obs:
+        cloud = obs["pointcloud"]
+        assert cloud.shape == (512, 3) and cloud.dtype == np.float32
+        assert len(np.unique(cloud, axis=0)) == 512  # a real FPS sample, not padding
+        lo, hi = np.array(env.pointcloud_spec.bounds.low), np.array(env.pointcloud_spec.bounds.high)
+        assert np.all(cloud > lo) and np.all(cloud < hi)
+    if "pixels" in obs:
+        img = obs["pixels"]
+        assert img.shape == (*image_hw, 3) and img.dtype == np.uint8
+        assert img.std() > 5  # a rendered scene, not a blank frame
+
+
+@pytest.mark.parametrize("obs_type", OBS_TYPES)
+def test_metaworld_obs_types(obs_type):
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    env = FocalMetaworldEnvConfig(task="reach", obs_type=obs_type).make_single_env()
+    try:
+        obs, info = env.reset(seed=0)
+        assert info["is_success"] is False
+        _check_obs(env, obs, 9, (128, 128))
+        first = obs
+        for _ in range(3):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        _check_obs(env, obs, 9, (128, 128))
+        assert isinstance(reward, float) and not terminated and not truncated and info["is_success"] is False
+        if "agent_pos" in obs:
+            # hand, right pad, left pad: pads straddle the hand, and the state moves with the arm
+            hand, right, left = obs["agent_pos"].reshape(3, 3)
+            assert np.linalg.norm(right - left) < 0.15 and np.linalg.norm((right + left) / 2 - hand) < 0.1
+            assert not np.allclose(first["agent_pos"], obs["agent_pos"])
+    finally:
+        env.close()
+
+
+def test_metaworld_seed_controls_object_positions():
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    env = FocalMetaworldEnvConfig(task="pick-place", obs_type="pointcloud").make_single_env()
+    try:
+        a, _ = env.reset(seed=1)
+        b, _ = env.reset(seed=1)
+        c, _ = env.reset(seed=2)
+        np.testing.assert_array_equal(a["pointcloud"], b["pointcloud"])
+        assert not np.array_equal(a["pointcloud"], c["pointcloud"])
+    finally:
+        env.close()
+
+
+def test_metaworld_expert_success_terminates_with_metrics(tmp_path):
+    """The scripted expert solves reach; the env reports success, terminates and logs ATV."""
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    metrics = tmp_path / "episodes.jsonl"
+    env = FocalMetaworldEnvConfig(task="reach", obs_type="state", metrics_path=str(metrics)).make_single_env()
+    try:
+        env.reset(seed=0)
+        actions = []
+        for _ in range(env._max_episode_steps):
+            action = env.expert_action()
+            actions.append(action)
+            _, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        assert terminated and info["is_success"] and info["final_info"]["is_success"]
+        assert info["action_total_variation"] == pytest.approx(action_total_variation(actions))
+        record = json.loads(metrics.read_text().strip())
+        assert record["success"] is True and record["length"] == len(actions) and record["seed"] == 0
+    finally:
+        env.close()
+
+
+def test_metaworld_truncates_at_episode_length():
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    env = FocalMetaworldEnvConfig(task="pick-place", obs_type="state", episode_length=12).make_single_env()
+    try:
+        env.reset(seed=0)
+        flags = [env.step(np.zeros(4, np.float32))[2:4] for _ in range(12)]
+        assert flags[-1] == (False, True) and all(f == (False, False) for f in flags[:-1])
+    finally:
+        env.close()
+
+
+def test_metaworld_vector_env_and_processor():
+    """create_envs -> SyncVectorEnv (as lerobot-eval builds it); the env processor yields (B, 512, 3)."""
+    import torch
+    from lerobot.envs.utils import preprocess_observation
+
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    cfg = FocalMetaworldEnvConfig(task="reach", obs_type="pointcloud")
+    envs = cfg.create_envs(n_envs=2)
+    vec = envs["reach-v3"][0]
+    try:
+        obs, _ = vec.reset(seed=[0, 1])
+        assert obs["pointcloud"].shape == (2, 512, 3) and obs["agent_pos"].shape == (2, 9)
+        assert vec.call("_max_episode_steps")[0] == 200
+        pre, _ = cfg.get_env_processors()
+        batch = pre(preprocess_observation(obs))
+        assert batch["observation.pointcloud"].shape == (2, 512, 3)
+        assert batch["observation.pointcloud"].dtype == torch.float32
+        assert batch["observation.state"].shape == (2, 9)
+        with pytest.raises(KeyError, match="no point cloud"):
+            pre({"observation.state": batch["observation.state"]})
+    finally:
+        vec.close()
+
+
+ADROIT = [("hammer", 26), ("door", 28), ("pen", 24)]
+
+
+@pytest.mark.parametrize("obs_type", OBS_TYPES)
+@pytest.mark.parametrize("task,action_dim", ADROIT)
+def test_adroit_obs_types(task, action_dim, obs_type):
+    pytest.importorskip("gymnasium_robotics")
+    from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
+
+    env = FocalAdroitEnvConfig(task=task, obs_type=obs_type).make_single_env()
+    try:
+        assert env.action_space.shape == (action_dim,)
+        obs, info = env.reset(seed=0)
+        assert info["is_success"] is False
+        _check_obs(env, obs, 24, (84, 84))
+        for _ in range(2):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        _check_obs(env, obs, 24, (84, 84))
+        assert isinstance(reward, float) and "is_success" in info
+    finally:
+        env.close()
+
+
+def test_adroit_door_success_reported():
+    """Open the door in the simulator state: the env must report success and terminate."""
+    pytest.importorskip("gymnasium_robotics")
+    from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
+
+    env = FocalAdroitEnvConfig(task="door", obs_type="state").make_single_env()
+    try:
+        env.reset(seed=0)
+        _, _, terminated, _, info = env.step(np.zeros(28, np.float32))
+        assert not terminated and info["is_success"] is False
+        sim = env._env.unwrapped
+        qpos, qvel = sim.data.qpos.copy(), sim.data.qvel.copy()
+        qpos[sim.model.jnt_qposadr[sim.model.joint("door_hinge").id]] = 1.5  # rad, past the 1.35 success line
+        sim.set_state(qpos, qvel)
+        _, _, terminated, _, info = env.step(np.zeros(28, np.float32))
+        assert terminated and info["is_success"] and info["final_info"]["is_success"]
+    finally:
+        env.close()
+
+
+def test_action_total_variation():
+    a = np.array([[0.0, 0.0], [1.0, -1.0], [1.0, 1.0]])
+    # |1|+|-1| + |0|+|2| = 4 over (3-1)*2 = 4 entries
+    assert action_total_variation(a) == pytest.approx(1.0)
+    assert action_total_variation(a[:1]) == 0.0
