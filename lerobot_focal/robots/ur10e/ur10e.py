@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 from functools import cached_property
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ from lerobot.robots.robot import Robot
 from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
 
 from .backend import ArmBackend
-from .camera_info import CameraInfo, depth_to_pointcloud
+from .camera_info import CameraInfo, depth_to_pointcloud, save_camera_infos
 from .config_ur10e import UR10eConfig
 from .kinematics import AG95_MAX_OPENING_M, JOINT_NAMES, apply_delta, matrix_from_pose6, pose_difference
 from .safety import RobotFaultError, SafetyFilter, UnsafeActionError, Watchdog
@@ -80,6 +81,8 @@ class UR10e(Robot):
         self.watchdog: Watchdog | None = None
         self._gripper_cmd: float | None = None
         self._target: np.ndarray | None = None
+        self.commands_sent = 0  # commands that reached the backend since construction
+        self.commanded_path_m = 0.0  # summed TCP displacement of those commands (how far they asked to move)
 
     # -- features (valid while disconnected) ------------------------------------------------------------------
     def _camera_shapes(self) -> dict[str, tuple[int, int, bool, bool]]:
@@ -143,7 +146,24 @@ class UR10e(Robot):
             self.config.safety.watchdog_timeout_s, on_timeout=backend.stop, health_check=backend.check_health
         )
         self.watchdog.start()
+        self._save_camera_infos()
         logger.info("%s connected (backend=%s).", self, self.config.backend)
+
+    @property
+    def camera_infos_path(self) -> Path:
+        """Where :meth:`connect` writes the depth cameras' intrinsics + extrinsics (JSON, see camera_info.py)."""
+        return self.calibration_dir / f"{self.id or self.name}_cameras.json"
+
+    def _save_camera_infos(self) -> None:
+        """Keep the intrinsics LeRobot's cameras drop, next to the robot's calibration, on every connect.
+
+        Copy the file into the dataset (``<root>/meta/cameras.json``) to unproject its ``{camera}_depth`` frames
+        later; :func:`.camera_info.load_camera_infos` reads it back.
+        """
+        infos = self.backend.camera_infos()
+        if infos:
+            save_camera_infos(self.camera_infos_path, infos)
+            logger.info("%s: depth camera intrinsics/extrinsics written to %s", self, self.camera_infos_path)
 
     @check_if_not_connected
     def disconnect(self) -> None:
@@ -156,7 +176,13 @@ class UR10e(Robot):
         except Exception:  # noqa: BLE001 - the connection may already be gone; disconnect anyway
             logger.exception("Stopping the UR10e during disconnect failed")
         backend.disconnect()
-        logger.info("%s disconnected.", self)
+        logger.info(
+            "%s disconnected after %d commands (commanded TCP path %.3f m); safety: %s.",
+            self,
+            self.commands_sent,
+            self.commanded_path_m,
+            self.safety.counters.as_dict(),
+        )
 
     # -- safety helpers ---------------------------------------------------------------------------------------
     @property
@@ -254,6 +280,8 @@ class UR10e(Robot):
         target = apply_delta(current, vec) if mode == "delta" else vec
         safe = self.safety.limit(target, current)
         self._target = safe
+        self.commands_sent += 1
+        self.commanded_path_m += float(np.linalg.norm(safe[:3] - current[:3]))
         try:
             self.backend.servo_tcp(safe)
             if gripper is not None:
