@@ -23,7 +23,7 @@ def _heldout_windows(spec: SyntheticSpec, cfg: FocalConfig):
     for ep in range(held.num_episodes):
         arr = episode_arrays(held, ep)
         for t in range(1, held.episode_length - cfg.horizon, 5):
-            obs.append({k: torch.from_numpy(arr[k][t - 1 : t + 1]) for k in ("observation.state", "observation.pointcloud")})
+            obs.append({k: torch.from_numpy(arr[k][t - 1 : t + 1]) for k in ("observation.state", "observation.pointcloud") if k in arr})
             targets.append(arr[ACTION][t : t + cfg.horizon])
     batch = {k: torch.stack([o[k] for o in obs]) for k in obs[0]}
     return batch, torch.from_numpy(np.stack(targets))

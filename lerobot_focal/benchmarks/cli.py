@@ -1,0 +1,43 @@
+"""`lerobot-focal-bench`: the project's benchmarks behind one command.
+
+    lerobot-focal-bench speed [--sizes cpu paper] [--device cpu|cuda] [--repeats 7] [--out docs/benchmarks]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lerobot-focal-bench", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    speed = sub.add_parser("speed", help="inference latency and train-step cost: focal vs bare U-Net vs diffusion")
+    speed.add_argument("--sizes", nargs="+", choices=["cpu", "paper"], default=["cpu", "paper"])
+    speed.add_argument("--device", default="cuda" if _cuda() else "cpu")
+    speed.add_argument("--repeats", type=int, default=7)
+    speed.add_argument("--cpu-train-batch", type=int, default=64, help="train batch for the CPU-preset network")
+    speed.add_argument("--paper-train-batch", type=int, default=None,
+                       help="train batch for the paper-size network (default: 128 on GPU, 16 on CPU)")
+    speed.add_argument("--no-ddpm", action="store_true", help="skip DDPM 100 (≈ 30 s per call at paper size on CPU)")
+    speed.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
+    args = parser.parse_args(argv)
+
+    if args.command == "speed":
+        from lerobot_focal.benchmarks.policy_speed import run
+
+        paper_batch = args.paper_train_batch or (128 if args.device.startswith("cuda") else 16)
+        run(args.sizes, args.device, args.repeats, {"cpu": args.cpu_train_batch, "paper": paper_batch},
+            not args.no_ddpm, args.out)
+    return 0
+
+
+def _cuda() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

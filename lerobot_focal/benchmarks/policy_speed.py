@@ -1,0 +1,232 @@
+"""Inference latency and training-step cost of `focal` against its own U-Net and LeRobot's `diffusion`.
+
+    lerobot-focal-bench speed                       # CPU preset and paper size, this machine
+    lerobot-focal-bench speed --sizes cpu --device cuda
+
+What is compared, at equal U-Net size (down_dims, kernel, groups, n_obs = 2; horizon 12 for focal, 16 for diffusion,
+the smallest LeRobot's diffusion accepts with three levels) and with the same
+observation (state 9-d + environment state 39-d, the only kind both policies take without extra encoders):
+- `focal` `predict_action_chunk` (obs encoder + one U-Net evaluation, batch 1) against one bare forward of the
+  same U-Net with a precomputed condition — the overhead of the policy around the network (goal ≤ 1.1×);
+- LeRobot's `diffusion` `generate_actions` with DDIM 10 and DDPM 100 steps at the same U-Net size;
+- one training step (forward, backward, AdamW step, EMA update) of `focal` against a plain flow-matching step
+  of the same network (goal ≤ 1.6×): focal pays one extra no-grad evaluation of the EMA target.
+Timings are medians over repeats measured in the same process; ratios are what to compare across machines.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+SIZES = {"cpu": (64, 128, 256), "paper": (512, 1024, 2048)}
+STATE_DIM, ENV_DIM, ACTION_DIM = 9, 39, 4
+
+
+@dataclass
+class Row:
+    size: str
+    params_m: float
+    what: str
+    median_ms: float
+    ratio: float | None = None
+    ratio_to: str = ""
+
+
+def _features():
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    inputs = {
+        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+        "observation.environment_state": PolicyFeature(type=FeatureType.ENV, shape=(ENV_DIM,)),
+    }
+    return inputs, {"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def time_ms(fns: dict[str, object], device: str, repeats: int, warmup: int = 2) -> dict[str, float]:
+    """Median milliseconds per call of each function, calls interleaved round-robin so that load from other
+    processes on a shared machine hits every contender alike and their ratio stays meaningful."""
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    _sync(device)
+    samples: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            _sync(device)
+            samples[name].append((time.perf_counter() - t0) * 1e3)
+    return {name: statistics.median(v) for name, v in samples.items()}
+
+
+def build_focal(down_dims, device: str):
+    from lerobot_focal.policy import FocalConfig, FocalPolicy
+
+    inputs, outputs = _features()
+    cfg = FocalConfig(device=device, down_dims=down_dims, use_env_state=True, input_features=inputs, output_features=outputs)
+    return FocalPolicy(cfg).to(device)
+
+
+def build_diffusion(down_dims, device: str, scheduler: str, steps: int):
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+    inputs, outputs = _features()
+    cfg = DiffusionConfig(
+        device=device,
+        down_dims=down_dims,
+        # LeRobot's diffusion needs horizon % 2**len(down_dims) == 0, so 16 (its default) rather than focal's 12.
+        horizon=16,
+        n_obs_steps=2,
+        n_action_steps=4,
+        noise_scheduler_type=scheduler,
+        num_train_timesteps=100,
+        num_inference_steps=steps,
+        input_features=inputs,
+        output_features=outputs,
+    )
+    return DiffusionPolicy(cfg).to(device)
+
+
+def _obs(batch: int, device: str) -> dict[str, Tensor]:
+    return {
+        "observation.state": torch.randn(batch, 2, STATE_DIM, device=device),
+        "observation.environment_state": torch.randn(batch, 2, ENV_DIM, device=device),
+    }
+
+
+def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
+    down_dims = SIZES[size]
+    focal = build_focal(down_dims, device).eval()
+    params = sum(p.numel() for p in focal.model.velocity_net.parameters()) / 1e6
+    obs = _obs(1, device)
+    net = focal.ema_model
+    cond = net.encode(obs)
+    x = torch.randn(1, focal.config.horizon, ACTION_DIM, device=device)
+    t = torch.full((1,), 0.01, device=device)
+    with torch.no_grad():
+        ms = time_ms({"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs)},
+                     device, repeats)
+    bare, chunk = ms["bare"], ms["chunk"]
+    rows = [
+        Row(size, params, "bare U-Net forward", bare),
+        Row(size, params, "focal predict_action_chunk (1 NFE)", chunk, chunk / bare, "bare"),
+    ]
+    del focal
+    variants = [("DDIM", 10)] + ([("DDPM", 100)] if ddpm else [])
+    for sched, steps in variants:
+        dp = build_diffusion(down_dims, device, sched, steps).eval()
+        with torch.no_grad():
+            ms = time_ms({"dp": lambda: dp.diffusion.generate_actions(obs)}, device,
+                         max(3, repeats // (4 if steps > 10 else 1)), warmup=1)["dp"]
+        rows.append(Row(size, params, f"diffusion {sched} {steps}", ms, ms / chunk, "focal"))
+        del dp
+    return rows
+
+
+def training_rows(size: str, device: str, repeats: int, batch: int) -> list[Row]:
+    from lerobot_focal.policy.objective import interpolate
+
+    focal = build_focal(SIZES[size], device).train()
+    params = sum(p.numel() for p in focal.model.velocity_net.parameters()) / 1e6
+    opt = torch.optim.AdamW(focal.get_optim_params(), lr=1e-4)
+    data = {**_obs(batch, device), "action": torch.randn(batch, focal.config.horizon, ACTION_DIM, device=device)}
+
+    def focal_step():
+        loss, _ = focal.forward(data)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        focal.update()
+
+    def plain_fm_step():
+        # Rectified flow matching with the same network and optimizer: x_t = (1-t)·x0 + t·x1, v* = x1 − x0.
+        obs = {k: data[k] for k in ("observation.state", "observation.environment_state")}
+        cond = focal.model.encode(obs)
+        m1 = data["action"]
+        m0 = torch.randn_like(m1)
+        tt = torch.rand(batch, device=device)
+        v = focal.model.velocity(interpolate(m0, m1, tt), tt, cond)
+        loss = torch.nn.functional.mse_loss(v, m1 - m0)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    ms = time_ms({"plain": plain_fm_step, "focal": focal_step}, device, repeats, warmup=1)
+    plain, ours = ms["plain"], ms["focal"]
+    return [
+        Row(size, params, f"plain flow-matching train step (batch {batch})", plain),
+        Row(size, params, f"focal train step incl. EMA (batch {batch})", ours, ours / plain, "plain FM"),
+    ]
+
+
+def render(rows: list[Row], device_name: str) -> str:
+    lines = [
+        f"Device: {device_name}; torch {torch.__version__}; threads {torch.get_num_threads()}",
+        "",
+        "| U-Net | params (M) | measurement | median ms | ratio |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        ratio = f"{r.ratio:.2f}× {r.ratio_to}" if r.ratio is not None else ""
+        lines.append(f"| {r.size} {SIZES[r.size]} | {r.params_m:.1f} | {r.what} | {r.median_ms:.1f} | {ratio} |")
+    return "\n".join(lines)
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sizes = sorted({r.size for r in rows}, key=list(SIZES).index)
+    fig, axes = plt.subplots(1, len(sizes), figsize=(6 * len(sizes), 3.6), squeeze=False)
+    for ax, size in zip(axes[0], sizes):
+        sub = [r for r in rows if r.size == size]
+        ax.barh([r.what for r in sub], [r.median_ms for r in sub], color=["C0" if "focal" in r.what else "C7" for r in sub])
+        ax.set_xscale("log")
+        ax.set_xlabel("median ms (log)")
+        ax.set_title(f"U-Net {SIZES[size]}")
+        for i, r in enumerate(sub):
+            ax.text(r.median_ms, i, f" {r.median_ms:.0f}", va="center", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path) -> list[Row]:
+    torch.manual_seed(0)
+    if device.startswith("cuda"):
+        device_name = torch.cuda.get_device_name(0)
+    else:
+        device_name = f"CPU {platform.processor() or platform.machine()} ({torch.get_num_threads()} threads)"
+    rows: list[Row] = []
+    for size in sizes:
+        print(f"[speed] {size}: inference …", flush=True)
+        rows += inference_rows(size, device, repeats, ddpm)
+        print(f"[speed] {size}: training step …", flush=True)
+        rows += training_rows(size, device, max(3, repeats // 2), train_batch[size])
+    table = render(rows, device_name)
+    print(table)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tag = "gpu" if device.startswith("cuda") else "cpu"
+    (out_dir / f"policy_speed_{tag}.md").write_text(table + "\n")
+    (out_dir / f"policy_speed_{tag}.json").write_text(
+        json.dumps({"device": device_name, "rows": [r.__dict__ for r in rows]}, indent=2)
+    )
+    plot(rows, out_dir / f"policy_speed_{tag}.png")
+    print(f"[speed] wrote {out_dir}/policy_speed_{tag}.{{md,json,png}}")
+    return rows
