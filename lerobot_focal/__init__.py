@@ -1,10 +1,13 @@
 """FocalPolicy for LeRobot.
 
-Importing this package registers, with LeRobot's registries, everything the project adds:
-the ``focal`` policy (``--policy.type=focal``) and, as they land, the simulation env configs, the UR-10e
-robot and the gamepad teleoperator.
+Importing this package registers, with LeRobot's registries, everything the project adds: the ``focal``
+policy (``--policy.type=focal``), the ``focal_metaworld`` / ``focal_adroit`` env configs, the ``ur10e``
+robot and the ``focal_gamepad`` teleoperator. Registration imports only config classes: simulators, ur_rtde,
+pymodbus and pygame are imported when an env, robot or teleoperator is actually built, so the plugin loads
+without the optional extras.
 """
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
+from lerobot_focal import envs, robots, teleoperators  # noqa: E402,F401  (registration side effects)
 
 __all__ = ["FocalConfig", "FocalPolicy", "make_focal_pre_post_processors"]
