@@ -245,3 +245,12 @@ def test_train_focal_then_rollout_drives_the_sim_arm(recorded, tmp_path):
     assert m, _tail(log)
     # The policy's commands reached the arm (plus rollout's 3 s return to the start pose at 50 Hz).
     assert int(m.group(1)) > 150 and float(m.group(2)) > 0.0, m.group(0)
+
+
+def test_teleoperate_with_virtual_gamepad_moves_the_sim_arm(tmp_path):
+    log = tmp_path / "teleop.log"
+    args = [str(BIN / "lerobot-teleoperate"), *ROBOT[:2], "--teleop.type=focal_gamepad", "--fps=30", "--teleop_time_s=3"]
+    _run(args, _env(tmp_path, pad=True), log, timeout=180)
+    m = re.search(r"UR10e disconnected after (\d+) commands \(commanded TCP path ([\d.]+) m\)", log.read_text())
+    assert m, _tail(log)
+    assert int(m.group(1)) > 20 and float(m.group(2)) > 0.02, m.group(0)
