@@ -1,6 +1,10 @@
 """Pre/post-processing pipelines for `focal`: LeRobot's standard policy pipeline plus per-channel point-cloud stats.
 
-Pre:  rename → add batch dim → device → normalise (inputs + action).   Post: unnormalise action → cpu.
+Pre:  rename → add batch dim → device → normalise (used inputs + action).   Post: unnormalise action → cpu.
+
+Only the observations the policy reads are normalised. A robot or dataset may carry more (a uint16 depth
+map, joint velocities), and LeRobot's default normaliser would touch every input feature — a uint16 depth
+frame then fails to convert ("value cannot be converted to type uint16 without overflow").
 
 Point clouds: LeRobot has no point-cloud feature type, so `observation.pointcloud` is a STATE feature and is
 MIN_MAX-normalised per xyz channel (DP3's "limits" normaliser). Stats written by LeRobot 0.6.1 for a (P, 3)
@@ -15,7 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from lerobot.processor import PolicyAction, PolicyProcessorPipeline, make_default_pre_post_processors
+from lerobot.processor import NormalizerProcessorStep, PolicyAction, PolicyProcessorPipeline
+from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
 
 from lerobot_focal.policy.configuration_focal import FocalConfig
 
@@ -60,4 +65,12 @@ def make_focal_pre_post_processors(
     if stats is not None and key in stats and key in config.input_features:
         channels = config.input_features[key].shape[-1]
         stats[key] = per_channel_pointcloud_stats(stats[key], channels)
-    return make_default_pre_post_processors(config, stats)
+    s = make_default_policy_processor_steps(config, stats)
+    used = {k: config.input_features[k] for k in config.used_observation_keys}
+    normalize = NormalizerProcessorStep(
+        features={**used, **config.output_features}, norm_map=config.normalization_mapping, stats=stats
+    )
+    return make_policy_processor_pipelines(
+        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device, normalize],
+        output_steps=[s.unnormalize, s.to_cpu],
+    )

@@ -116,6 +116,26 @@ def test_extra_dataset_features_are_ignored():
     assert policy.config.used_observation_keys == ["observation.pointcloud", "observation.state"]
 
 
+def test_preprocessor_leaves_unused_inputs_such_as_uint16_depth_alone():
+    """A robot observation with a raw uint16 depth map passes the preprocessor (LeRobot's default normaliser
+    would try to normalise it in place and fail) and the used keys are normalised."""
+    from lerobot_focal.policy import make_focal_pre_post_processors
+
+    cfg = small_config(pointcloud=None)
+    cfg.input_features["observation.images.depth"] = PolicyFeature(FeatureType.VISUAL, (1, 8, 8))
+    stats = {
+        "observation.state": {"min": torch.zeros(9), "max": torch.full((9,), 2.0)},
+        "observation.images.depth": {"mean": torch.tensor([[[1000.0]]]), "std": torch.tensor([[[10.0]]])},
+        "action": {"min": torch.zeros(3), "max": torch.ones(3)},
+    }
+    pre, _ = make_focal_pre_post_processors(cfg, dataset_stats=stats)
+    depth = torch.full((1, 8, 8), 60000, dtype=torch.uint16)
+    out = pre({"observation.state": torch.ones(9), "observation.images.depth": depth})
+    torch.testing.assert_close(out["observation.state"], torch.zeros(1, 9))  # min-max to [-1, 1]: 1 → 0
+    assert out["observation.images.depth"].dtype == torch.uint16
+    assert out["observation.images.depth"].to(torch.int32).max().item() == 60000
+
+
 def test_image_only_policy_trains_and_acts():
     policy = small_policy(state=None, pointcloud=None, image=(3, 32, 32))
     batch = {"observation.images.front": torch.rand(2, 2, 3, 32, 32), "action": torch.randn(2, 12, 3)}
