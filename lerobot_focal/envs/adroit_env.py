@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from .common import ensure_offscreen_gl
+
+# Before MuJoCo is imported (it binds its OpenGL backend then): lerobot-eval renders videos of every obs type.
+ensure_offscreen_gl()
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -12,7 +17,7 @@ from .common import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
     EpisodeMetrics,
-    ensure_offscreen_gl,
+    make_rendering_cheap,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -62,14 +67,15 @@ class FocalAdroitEnv(gym.Env):
         voxel_size: float = DEFAULT_VOXEL_SIZE,
         raycast_threads: int | None = None,
         metrics_path: str | None = None,
+        cheap_rendering: bool = True,
     ) -> None:
         super().__init__()
         if task not in ADROIT_TASKS:
             raise ValueError(f"unknown Adroit task {task!r}; valid tasks: {', '.join(ADROIT_TASKS)}")
         check_obs_type(obs_type)
-        if uses_pixels(obs_type):
-            ensure_offscreen_gl()
         self.metrics = EpisodeMetrics(task, metrics_path)
+        self.cheap_rendering = cheap_rendering
+        self._viewer_ready = False
         self.task = task
         self.task_description = TASK_DESCRIPTIONS[task]
         self.obs_type = obs_type
@@ -135,13 +141,17 @@ class FocalAdroitEnv(gym.Env):
         if uses_pointcloud(self.obs_type):
             obs[POINTCLOUD_KEY] = self._pc_sensor(data)
         if uses_pixels(self.obs_type):
-            obs[PIXELS_KEY] = np.ascontiguousarray(self._env.render())
+            obs[PIXELS_KEY] = np.ascontiguousarray(self.render())
         return obs
 
     def render(self) -> np.ndarray:
         self._ensure_env()
         if self._env.render_mode is None:
             raise RuntimeError("rendering needs obs_type 'pixels' or 'pixels_agent_pos' (and an OpenGL backend)")
+        if not self._viewer_ready:
+            if self.cheap_rendering:
+                make_rendering_cheap(self._env.unwrapped.mujoco_renderer)
+            self._viewer_ready = True
         return self._env.render()
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):

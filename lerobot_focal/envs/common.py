@@ -157,3 +157,17 @@ class EpisodeMetrics:
                 f.write(json.dumps(record) + "\n")
         self.actions = []
         return record
+
+
+def make_rendering_cheap(mujoco_renderer) -> None:
+    """Turn off shadows and reflections in a gymnasium ``MujocoRenderer``'s offscreen viewer.
+
+    With software OpenGL (Mesa llvmpipe through EGL or OSMesa, the only kind on a GPU-less machine) they
+    cost ~8x: a 128x128 MetaWorld frame took 152 ms with them and 18 ms without. Geometry, colours and
+    textures are unchanged.
+    """
+    import mujoco
+
+    viewer = mujoco_renderer._get_viewer(render_mode="rgb_array")
+    viewer.scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+    viewer.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0

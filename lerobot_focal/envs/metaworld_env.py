@@ -10,6 +10,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from .common import ensure_offscreen_gl
+
+# Before MuJoCo is imported (it binds its OpenGL backend then): lerobot-eval renders videos of every obs type.
+ensure_offscreen_gl()
+
 import metaworld
 import mujoco
 import numpy as np
@@ -21,7 +26,7 @@ from .common import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
     EpisodeMetrics,
-    ensure_offscreen_gl,
+    make_rendering_cheap,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -63,10 +68,9 @@ class FocalMetaworldEnv(MetaworldEnv):
         visualization_width: int = 640,
         visualization_height: int = 480,
         metrics_path: str | None = None,
+        cheap_rendering: bool = True,
     ) -> None:
         check_obs_type(obs_type)
-        if uses_pixels(obs_type):
-            ensure_offscreen_gl()
         # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
         super().__init__(
             task=task,
@@ -88,6 +92,8 @@ class FocalMetaworldEnv(MetaworldEnv):
         self.raycast_threads = raycast_threads
         self._pc_sensor: RayCastPointCloudSensor | None = None
         self.metrics = EpisodeMetrics(self.task, metrics_path)
+        self.cheap_rendering = cheap_rendering
+        self._viewer_ready = False
         self.last_raw_obs: np.ndarray | None = None  # MetaWorld's 39-d observation, what its experts read
 
         obs_spaces: dict[str, spaces.Space] = {}
@@ -146,6 +152,15 @@ class FocalMetaworldEnv(MetaworldEnv):
     def pointcloud(self) -> np.ndarray:
         assert self._pc_sensor is not None, "point cloud requested but obs_type is not 'pointcloud'"
         return self._pc_sensor(self._env.data)
+
+    def render(self) -> np.ndarray:
+        """RGB frame of ``camera_name`` (LeRobot's orientation fix for corner2), shadows off by default."""
+        self._ensure_env()
+        if not self._viewer_ready:
+            if self.cheap_rendering:
+                make_rendering_cheap(self._env.mujoco_renderer)
+            self._viewer_ready = True
+        return super().render()
 
     def expert_action(self) -> np.ndarray:
         """MetaWorld's scripted expert (``metaworld.policies``) for the current state, clipped to [-1, 1]."""
