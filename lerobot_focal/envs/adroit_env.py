@@ -76,6 +76,7 @@ class FocalAdroitEnv(gym.Env):
         self.metrics = EpisodeMetrics(task, metrics_path)
         self.cheap_rendering = cheap_rendering
         self._viewer_ready = False
+        self.last_raw_obs: np.ndarray | None = None
         self.task = task
         self.task_description = TASK_DESCRIPTIONS[task]
         self.obs_type = obs_type
@@ -157,7 +158,8 @@ class FocalAdroitEnv(gym.Env):
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):
         self._ensure_env()
         super().reset(seed=seed)
-        self._env.reset(seed=seed)
+        raw, _ = self._env.reset(seed=seed, options=options)
+        self.last_raw_obs = np.asarray(raw)  # gymnasium-robotics' own observation (what Minari/D4RL store)
         self._steps = 0
         self.metrics.start(seed)
         return self._obs(), {"is_success": False}
@@ -168,7 +170,8 @@ class FocalAdroitEnv(gym.Env):
         if action.shape != self.action_space.shape:
             raise ValueError(f"expected action of shape {self.action_space.shape}, got {action.shape}")
         self.metrics.step(action)
-        _, reward, terminated, _, info = self._env.step(action)
+        raw, reward, terminated, _, info = self._env.step(action)
+        self.last_raw_obs = np.asarray(raw)
         self._steps += 1
         is_success = bool(info.get("success", info.get("goal_achieved", False)))
         terminated = bool(terminated) or (self.terminate_on_success and is_success)

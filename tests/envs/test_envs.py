@@ -132,11 +132,18 @@ def test_metaworld_vector_env_and_processor():
         vec.close()
 
 
-ADROIT = [("hammer", 26), ("door", 28), ("pen", 24)]
+# Every obs type, every task, and a point cloud from every task (each case builds its own simulator).
+ADROIT_CASES = [
+    ("hammer", 26, "state"),
+    ("hammer", 26, "pointcloud"),
+    ("door", 28, "pointcloud"),
+    ("door", 28, "pixels_agent_pos"),
+    ("pen", 24, "pointcloud"),
+    ("pen", 24, "pixels"),
+]
 
 
-@pytest.mark.parametrize("obs_type", OBS_TYPES)
-@pytest.mark.parametrize("task,action_dim", ADROIT)
+@pytest.mark.parametrize("task,action_dim,obs_type", ADROIT_CASES)
 def test_adroit_obs_types(task, action_dim, obs_type):
     pytest.importorskip("gymnasium_robotics")
     from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
