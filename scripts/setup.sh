@@ -25,6 +25,17 @@ find_python() {
     return 1
 }
 
+# MuJoCo renders offscreen (depth for point clouds, pixels, eval videos) through EGL or OSMesa. Neither needs a
+# GPU; OSMesa is the software one. Install it when neither library is present and we can.
+if ! ldconfig -p 2>/dev/null | grep -q -E "libOSMesa\.so|libEGL\.so"; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "[setup] installing libosmesa6 (software OpenGL for MuJoCo's offscreen rendering)"
+        apt-get install -y -q libosmesa6 libgl1 >/dev/null || echo "[setup] warning: apt-get install libosmesa6 failed" >&2
+    else
+        echo "[setup] warning: no libOSMesa or libEGL found; MuJoCo rendering needs one (Debian: apt install libosmesa6)" >&2
+    fi
+fi
+
 if [ ! -x "$VENV/bin/python" ] || ! is_py312 "$VENV/bin/python"; then
     if ! PY="$(find_python)"; then
         echo "error: LeRobot ≥ 0.5 needs Python ≥ 3.12 and none was found." >&2
@@ -37,10 +48,13 @@ if [ ! -x "$VENV/bin/python" ] || ! is_py312 "$VENV/bin/python"; then
     "$VENV/bin/python" -m pip install --quiet --upgrade pip
 fi
 
-if ! "$VENV/bin/python" -c 'import lerobot_policy_focal, lerobot, metaworld, pytest' >/dev/null 2>&1; then
+# Always run pip: on a set-up venv it only checks that pyproject's requirements are still met (seconds).
+if "$VENV/bin/python" -c 'import lerobot' >/dev/null 2>&1; then
+    echo "[setup] checking lerobot_focal[sim,robot,dev] in $VENV"
+else
     echo "[setup] installing lerobot_focal[sim,robot,dev] into $VENV (first time: ~4 min, ~6 GB: PyPI's torch is a CUDA build)"
-    "$VENV/bin/python" -m pip install --progress-bar off -e ".[sim,robot,dev]"
 fi
+"$VENV/bin/python" -m pip install --quiet --progress-bar off -e ".[sim,robot,dev]" 2>&1 | { grep -v "^WARNING: Location" || true; }
 if ! out="$("$VENV/bin/python" -c 'import lerobot, lerobot_policy_focal; print(lerobot.__version__)' 2>&1)"; then
     echo "$out" >&2; echo "error: the install in $VENV does not import; see above." >&2; exit 1
 fi
