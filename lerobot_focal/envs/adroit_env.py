@@ -109,14 +109,13 @@ class FocalAdroitEnv(gym.Env):
         if self._env is not None:
             return
         _register_gymnasium_robotics()
-        kwargs: dict[str, Any] = {}
-        if uses_pixels(self.obs_type):
-            kwargs = {
-                "render_mode": "rgb_array",
-                "camera_name": self.camera_name,
-                "width": self._image_size[1],
-                "height": self._image_size[0],
-            }
+        # Always rgb_array: the GL context is only made on the first render() (pixel obs, or lerobot-eval videos).
+        kwargs: dict[str, Any] = {
+            "render_mode": "rgb_array",
+            "camera_name": self.camera_name,
+            "width": self._image_size[1],
+            "height": self._image_size[0],
+        }
         # No gymnasium TimeLimit: the episode length is ours (lerobot-eval reads _max_episode_steps).
         env = gym.make(self._gym_id, max_episode_steps=None, disable_env_checker=True, **kwargs)
         self._env = env
@@ -147,8 +146,6 @@ class FocalAdroitEnv(gym.Env):
 
     def render(self) -> np.ndarray:
         self._ensure_env()
-        if self._env.render_mode is None:
-            raise RuntimeError("rendering needs obs_type 'pixels' or 'pixels_agent_pos' (and an OpenGL backend)")
         if not self._viewer_ready:
             if self.cheap_rendering:
                 make_rendering_cheap(self._env.unwrapped.mujoco_renderer)

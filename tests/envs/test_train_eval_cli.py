@@ -23,11 +23,11 @@ def _run(cmd, timeout, **kw):
     return result.stdout + result.stderr
 
 
-def _train(dataset_root, out_dir, steps=6):
+def _train(dataset_root, out_dir, steps=6, repo_id="local/focal_metaworld"):
     assert shutil.which("lerobot-train", path=str(BIN)), "lerobot-train not installed in this venv"
     _run(
         [
-            str(BIN / "lerobot-train"), "--policy.type=focal", "--dataset.repo_id=local/focal_metaworld",
+            str(BIN / "lerobot-train"), "--policy.type=focal", f"--dataset.repo_id={repo_id}",
             f"--dataset.root={dataset_root}", "--policy.down_dims=[32,64,128]", f"--steps={steps}",
             "--batch_size=4", "--policy.push_to_hub=false", "--wandb.enable=false", "--num_workers=0",
             f"--output_dir={out_dir}", f"--save_freq={steps}", "--log_freq=1", "--policy.device=cpu",
@@ -74,3 +74,26 @@ def test_collect_train_eval_metaworld(tmp_path):
     assert len(re.findall(r"focal env episode: task=reach-v3 .* ATV=", out)) == 2
     atv = sum(e["action_total_variation"] for e in episodes) / len(episodes)
     print(f"\nfocal_metaworld reach: success {overall['pc_success']:.1f}% ATV {atv:.4f}")
+
+
+@pytest.mark.slow
+def test_minari_import_train_eval_adroit(tmp_path):
+    pytest.importorskip("minari")
+    pytest.importorskip("gymnasium_robotics")
+    from tests.datasets.test_minari_import import DATASET_ID, _make_minari_dataset
+
+    _make_minari_dataset(tmp_path / "minari")
+    data = tmp_path / "data"
+    _run([sys.executable, "-m", "lerobot_focal.datasets.minari_import", "--dataset_id", DATASET_ID, "--root",
+          str(data), "--minari_root", str(tmp_path / "minari"), "--all_episodes"], timeout=600)
+    ckpt = _train(data, tmp_path / "train", repo_id="local/focal_adroit")
+    assert "observation.pointcloud" in json.loads((ckpt / "config.json").read_text())["input_features"]
+    metrics = tmp_path / "episodes.jsonl"
+    out, info, episodes = _eval(
+        ckpt, ["--env.type=focal_adroit", "--env.task=door", "--env.episode_length=30"], tmp_path / "eval", metrics
+    )
+    assert info["overall"]["n_episodes"] == 2
+    assert len(episodes) == 2 and all(e["task"] == "door" and e["length"] == 30 for e in episodes)
+    assert all(e["action_total_variation"] > 0 for e in episodes)
+    atv = sum(e["action_total_variation"] for e in episodes) / 2
+    print(f"\nfocal_adroit door: success {info['overall']['pc_success']:.1f}% ATV {atv:.4f}")
