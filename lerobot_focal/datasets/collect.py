@@ -283,8 +283,19 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
     )
 
 
+def _quiet_libraries() -> None:
+    """Keep the terminal to one progress bar: no per-episode stats bars, no expert-gain warnings."""
+    import warnings
+
+    import datasets
+
+    datasets.disable_progress_bars()
+    warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")
+
+
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    _quiet_libraries()
     cfg = parse_args(argv)
     try:
         summary = collect(cfg)

@@ -149,13 +149,15 @@ class FocalMetaworldEnvConfig(EnvConfig):
         cached: tuple | None = None
         for group, tasks in self.tasks_by_group.items():
             for tid, name in enumerate(tasks):
-                fns = [freeze_after_episode_end(lambda tn=name: FocalMetaworldEnv(task=tn, **kwargs)) for _ in range(n_envs)]
+                fns = [(lambda tn=name: FocalMetaworldEnv(task=tn, **kwargs)) for _ in range(n_envs)]
                 if env_cls is gym.vector.AsyncVectorEnv:
+                    # LeRobot's lazy async env (one task's workers alive at a time) adds the freeze wrapper.
                     lazy = _LazyAsyncVectorEnv(fns, *(cached or (None, None, None)))
                     cached = cached or (lazy.observation_space, lazy.action_space, lazy.metadata)
                     out[group][tid] = lazy
                 else:
-                    out[group][tid] = env_cls(fns)
+                    # Stop simulating a finished sub-env (and its autoreset) until lerobot-eval's next rollout.
+                    out[group][tid] = env_cls([freeze_after_episode_end(fn) for fn in fns])
         return {group: dict(task_map) for group, task_map in out.items()}
 
     def get_env_processors(self):

@@ -36,6 +36,8 @@ from .pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds, dept
 RENDERED_GEOM_GROUPS: tuple[int, ...] = (1, 1, 1, 0, 0, 0)
 # Where static geoms are moved in the per-frame scratch data: beyond any cutoff, so mj_multiRay skips them.
 _PARKED = 1e9
+# Corners of the cube [-1, 1]^3, scaled by a bounding-sphere radius to bound a geom.
+_CUBE_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 # OpenCV camera axes expressed in MuJoCo's camera frame (x right, y up, looking down -z).
 _CV_FROM_MJ = np.diag([1.0, -1.0, -1.0])
 
@@ -117,10 +119,14 @@ class RayCastDepthCamera:
         # Static geoms (welded to the world) are ray-cast once per camera pose (see _static_depth); per frame
         # they are parked far away in the scratch data, where mj_multiRay's cutoff test drops them for free.
         self._static_geoms = model.body_weldid[model.geom_bodyid] == 0
+        visible = self._geomgroup[np.clip(model.geom_group, 0, mujoco.mjNGROUP - 1)] > 0
+        self._dynamic_geoms = np.flatnonzero(~self._static_geoms & visible)
+        self._last_cast = 0
         self._pose_key: np.ndarray | None = None
         self._active: np.ndarray = np.arange(0)
-        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self._static_dist: list[np.ndarray] = []
+        self._active_mask: np.ndarray = np.zeros(0, dtype=bool)
+        self._world_rays: np.ndarray = np.zeros((0, 3))
+        self._static_full: np.ndarray = np.zeros(0)
 
     @property
     def width(self) -> int:
@@ -134,21 +140,18 @@ class RayCastDepthCamera:
         return mujoco_camera_pose(self.model, data, self.camera_id)
 
     def _prepare(self, pose: CameraPose, data: mujoco.MjData) -> None:
-        """Recompute world-frame ray directions and the cast/skip mask only when the camera moved."""
+        """Per camera pose (once for a fixed camera): world rays, the workspace mask, the static depth."""
         key = np.concatenate([pose.position, pose.rotation.ravel()])
         if self._pose_key is not None and np.array_equal(key, self._pose_key):
             return
-        world_rays = self._cam_rays @ pose.rotation.T
+        self._world_rays = np.ascontiguousarray(self._cam_rays @ pose.rotation.T)
         if self.skip_outside is None:
-            active = np.arange(world_rays.shape[0])
+            self._active_mask = np.ones(self._world_rays.shape[0], dtype=bool)
         else:
-            active = np.flatnonzero(_segment_hits_box(pose.position, world_rays, self.max_depth, self.skip_outside))
-        self._active = active
-        self._chunks = []
-        for idx in np.array_split(active, self._num_threads):
-            vec = np.ascontiguousarray(world_rays[idx]).ravel()
-            self._chunks.append((idx, vec, np.empty(idx.size, np.int32), np.empty(idx.size, np.float64)))
-        self._static_dist = [self._static_depth(pose.position, world_rays[idx], data) for idx, *_ in self._chunks]
+            self._active_mask = _segment_hits_box(pose.position, self._world_rays, self.max_depth, self.skip_outside)
+        self._active = np.flatnonzero(self._active_mask)
+        self._static_full = np.full(self._world_rays.shape[0], np.inf)
+        self._static_full[self._active] = self._static_depth(pose.position, self._world_rays[self._active], data)
         self._pose_key = key
 
     def _static_depth(self, origin: np.ndarray, world_rays: np.ndarray, data: mujoco.MjData) -> np.ndarray:
@@ -161,12 +164,12 @@ class RayCastDepthCamera:
         """
         model = self.model
         static = self._static_geoms
-        scratch = mujoco.MjData(model)
-        scratch.geom_xmat[:] = data.geom_xmat
-        scratch.geom_xpos[:] = np.where(static[:, None], data.geom_xpos, _PARKED)  # park moving geoms far away
         out = np.full(world_rays.shape[0], np.inf)
         if not static.any():
             return out
+        scratch = mujoco.MjData(model)
+        scratch.geom_xmat[:] = data.geom_xmat
+        scratch.geom_xpos[:] = np.where(static[:, None], data.geom_xpos, _PARKED)  # park moving geoms far away
         geomid = np.zeros(1, np.int32)
         for i, vec in enumerate(world_rays):
             dist = mujoco.mj_ray(model, scratch, origin, vec, self._geomgroup, 1, -1, geomid)
@@ -174,14 +177,44 @@ class RayCastDepthCamera:
                 out[i] = dist
         return out
 
-    def _cast(self, chunk_index: int, origin: np.ndarray) -> None:
-        idx, vec, geomid, dist = self._chunks[chunk_index]
-        if idx.size == 0:
-            return
-        mujoco.mj_multiRay(
-            self.model, self._scratch[chunk_index], origin, vec, self._geomgroup, 1, -1, geomid, dist,
-            idx.size, self._cutoff,
-        )
+    def _dynamic_pixels(self, pose: CameraPose, data: mujoco.MjData) -> np.ndarray:
+        """Flat mask of the pixels whose ray can hit a moving geom: the union, over moving geoms, of the image
+        rectangle bounding the projection of the cube around the geom's bounding sphere (conservative: a ray
+        that hits a geom passes through its bounding sphere)."""
+        ids = self._dynamic_geoms
+        mask = np.zeros((self.height, self.width), dtype=bool)
+        if ids.size == 0:
+            return mask.ravel()
+        centre = (data.geom_xpos[ids] - pose.position) @ pose.rotation  # OpenCV camera frame
+        radius = self.model.geom_rbound[ids]
+        corners = centre[:, None, :] + radius[:, None, None] * _CUBE_CORNERS[None]  # (G, 8, 3)
+        z = corners[..., 2]
+        in_front = z.min(axis=1) > 1e-6
+        behind = z.max(axis=1) <= 0
+        intr = self.intrinsics
+        if np.any(~in_front & ~behind):  # a bounding cube straddles the camera plane: cast everything
+            return np.ones(self.height * self.width, dtype=bool)
+        keep = in_front
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = intr.fx * corners[keep, :, 0] / z[keep] + intr.cx
+            v = intr.fy * corners[keep, :, 1] / z[keep] + intr.cy
+        u0 = np.clip(np.floor(u.min(axis=1)) - 1, 0, self.width).astype(int)
+        u1 = np.clip(np.ceil(u.max(axis=1)) + 2, 0, self.width).astype(int)
+        v0 = np.clip(np.floor(v.min(axis=1)) - 1, 0, self.height).astype(int)
+        v1 = np.clip(np.ceil(v.max(axis=1)) + 2, 0, self.height).astype(int)
+        for a, b, c, d in zip(v0, v1, u0, u1, strict=True):
+            mask[a:b, c:d] = True
+        return mask.ravel()
+
+    def _cast(self, chunk: np.ndarray, scratch: mujoco.MjData, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        geomid = np.empty(chunk.size, np.int32)
+        dist = np.empty(chunk.size, np.float64)
+        if chunk.size:
+            vec = self._world_rays[chunk].ravel()
+            mujoco.mj_multiRay(
+                self.model, scratch, origin, vec, self._geomgroup, 1, -1, geomid, dist, chunk.size, self._cutoff
+            )
+        return geomid, dist
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
         """Depth image of the current state of ``data`` (which must be up to date, e.g. after mj_forward)."""
@@ -195,24 +228,26 @@ class RayCastDepthCamera:
             # at zeros there silently drops most of the scene.
             scratch.xipos[:] = data.xipos
         origin = pose.position
+        # Only pixels that can see a moving geom are cast; the rest keep the static depth.
+        cast = np.flatnonzero(self._active_mask & self._dynamic_pixels(pose, data))
+        self._last_cast = int(cast.size)
+        chunks = np.array_split(cast, self._num_threads)
         if self._num_threads == 1:
-            self._cast(0, origin)
+            results = [self._cast(chunks[0], self._scratch[0], origin)]
         else:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=self._num_threads, thread_name_prefix="raycast")
-            list(self._pool.map(self._cast, range(self._num_threads), [origin] * self._num_threads))
-        depth = np.zeros(self.height * self.width, dtype=np.float32)
-        for (idx, _, geomid, dist), static in zip(self._chunks, self._static_dist, strict=True):
-            merged = np.where(geomid >= 0, dist, np.inf)
-            np.minimum(merged, static, out=merged)
-            hit = merged <= self.max_depth
-            depth[idx[hit]] = merged[hit]
+            results = list(self._pool.map(self._cast, chunks, self._scratch, [origin] * self._num_threads))
+        full = self._static_full.copy()
+        for chunk, (geomid, dist) in zip(chunks, results, strict=True):
+            full[chunk] = np.minimum(np.where(geomid >= 0, dist, np.inf), full[chunk])
+        depth = np.where(full <= self.max_depth, full, 0.0).astype(np.float32)
         return depth.reshape(self.height, self.width)
 
     @property
     def num_cast_rays(self) -> int:
-        """Rays actually cast per frame (after skipping rays that cannot reach the workspace)."""
-        return int(self._active.size)
+        """Rays cast by mj_multiRay in the last frame (the rest came from the cached static depth)."""
+        return self._last_cast
 
     def close(self) -> None:
         if self._pool is not None:

@@ -108,14 +108,15 @@ def test_metaworld_truncates_at_episode_length():
 
 
 def test_metaworld_vector_env_and_processor():
-    """create_envs -> SyncVectorEnv (as lerobot-eval builds it); the env processor yields (B, 512, 3)."""
+    """create_envs -> async vector env (lerobot-eval's default for batch_size > 1, simulators in worker
+    processes); the env processor yields (B, 512, 3)."""
     import torch
     from lerobot.envs.utils import preprocess_observation
 
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 
     cfg = FocalMetaworldEnvConfig(task="reach", obs_type="pointcloud")
-    envs = cfg.create_envs(n_envs=2)
+    envs = cfg.create_envs(n_envs=2, use_async_envs=True)
     vec = envs["reach-v3"][0]
     try:
         obs, _ = vec.reset(seed=[0, 1])
