@@ -25,14 +25,21 @@ find_python() {
     return 1
 }
 
-# MuJoCo renders offscreen (depth for point clouds, pixels, eval videos) through EGL or OSMesa. Neither needs a
-# GPU; OSMesa is the software one. Install it when neither library is present and we can.
-if ! ldconfig -p 2>/dev/null | grep -q -E "libOSMesa\.so|libEGL\.so"; then
+# System libraries, installed with apt when missing and we are root (otherwise a warning says what to install):
+# - OSMesa: MuJoCo renders offscreen (depth for point clouds, pixels, eval videos) through EGL or OSMesa;
+#   neither needs a GPU.
+# - FFmpeg's shared libraries: LeRobot decodes dataset videos with torchcodec, which loads them at import;
+#   without them every lerobot-* command prints a long traceback and falls back to the slower pyav.
+missing=()
+ldconfig -p 2>/dev/null | grep -q -E "libOSMesa\.so|libEGL\.so" || missing+=(libosmesa6 libgl1)
+ldconfig -p 2>/dev/null | grep -q "libavutil\.so" || missing+=(ffmpeg)
+if [ ${#missing[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-        echo "[setup] installing libosmesa6 (software OpenGL for MuJoCo's offscreen rendering)"
-        apt-get install -y -q libosmesa6 libgl1 >/dev/null || echo "[setup] warning: apt-get install libosmesa6 failed" >&2
+        echo "[setup] apt-get install ${missing[*]}"
+        apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null \
+            || echo "[setup] warning: apt-get install ${missing[*]} failed" >&2
     else
-        echo "[setup] warning: no libOSMesa or libEGL found; MuJoCo rendering needs one (Debian: apt install libosmesa6)" >&2
+        echo "[setup] warning: missing system packages: ${missing[*]} (Debian names); install them for rendering and video decoding" >&2
     fi
 fi
 

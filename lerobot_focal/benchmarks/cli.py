@@ -21,11 +21,18 @@ def main(argv: list[str] | None = None) -> int:
     speed.add_argument("--paper-train-batch", type=int, default=None,
                        help="train batch for the paper-size network (default: 128 on GPU, 16 on CPU)")
     speed.add_argument("--no-ddpm", action="store_true", help="skip DDPM 100 (≈ 30 s per call at paper size on CPU)")
+    speed.add_argument("--threads", type=int, default=None,
+                       help="torch intra-op threads (default: torch's). On a shared machine 1 avoids oversubscription")
     speed.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
     args = parser.parse_args(argv)
 
     if args.command == "speed":
+        import torch
+
         from lerobot_focal.benchmarks.policy_speed import run
+
+        if args.threads:
+            torch.set_num_threads(args.threads)
 
         paper_batch = args.paper_train_batch or (128 if args.device.startswith("cuda") else 16)
         run(args.sizes, args.device, args.repeats, {"cpu": args.cpu_train_batch, "paper": paper_batch},

@@ -5,7 +5,7 @@ LeRobotDataset on disk, training is LeRobot's own `lerobot-train` process (its p
 check loads the saved checkpoint the way `lerobot-eval` does (`from_pretrained` + saved processors), then rolls
 the policy along held-out episodes, one network evaluation per chunk of H actions.
 
-    python -m lerobot_focal.demos.synthetic_reach --steps 1500 --output outputs/demo
+    python -m lerobot_focal.demos.synthetic_reach --steps 1000 --output outputs/demo
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def plot(spec: SyntheticSpec, predicted: list[np.ndarray], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--output", type=Path, default=Path("outputs/demo"))
-    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--episodes", type=int, default=12)
     args = parser.parse_args(argv)

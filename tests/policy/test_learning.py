@@ -2,49 +2,53 @@
 
 Real pieces throughout: a LeRobotDataset on disk, LeRobot's delta-timestamp windowing and padding, the
 policy's own processors, one network evaluation per prediction. The dataset items are read once and kept in
-memory (the stock reader costs ~tens of ms per point-cloud item), then re-batched for 400 steps.
+memory, then re-batched for the training steps.
+
+Two baselines make "learned" mean something: an untrained policy (random flow) and holding the current
+position for the whole chunk. Actions are absolute positions a step ahead, so holding still is already close;
+beating it needs the policy to read from the observation which of the four goals the episode heads to, and
+move toward it along that goal's curve.
 """
 
 import numpy as np
 import torch
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from lerobot.utils.constants import ACTION
+from lerobot.utils.constants import ACTION, OBS_STATE
+from lerobot.utils.feature_utils import dataset_to_policy_features
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
-from lerobot.utils.feature_utils import dataset_to_policy_features
+
+STEPS = 600
 
 
 def _heldout_windows(spec: SyntheticSpec, cfg: FocalConfig):
-    """Observation windows and true macro-trajectories from episodes the policy never saw (another seed)."""
+    """Observation windows and true proximal chunks from episodes the policy never saw (another seed)."""
     held = SyntheticSpec(**{**spec.__dict__, "seed": 123, "num_episodes": 4})
     obs, targets = [], []
     for ep in range(held.num_episodes):
         arr = episode_arrays(held, ep)
-        for t in range(1, held.episode_length - cfg.horizon, 5):
-            obs.append({k: torch.from_numpy(arr[k][t - 1 : t + 1]) for k in ("observation.state", "observation.pointcloud") if k in arr})
-            targets.append(arr[ACTION][t : t + cfg.horizon])
-    batch = {k: torch.stack([o[k] for o in obs]) for k in obs[0]}
-    return batch, torch.from_numpy(np.stack(targets))
+        for t in range(1, held.episode_length - cfg.chunk_size, 2):
+            obs.append(torch.from_numpy(arr[OBS_STATE][t - 1 : t + 1]))
+            targets.append(arr[ACTION][t : t + cfg.chunk_size])
+    return {OBS_STATE: torch.stack(obs)}, torch.from_numpy(np.stack(targets))
 
 
-def _proximal_rmse(policy, pre, post, obs, targets, cfg) -> float:
+def _proximal_rmse(policy, pre, post, obs, targets) -> float:
     policy.eval()
+    policy.reset()
     torch.manual_seed(0)
     with torch.no_grad():
-        normed = pre(dict(obs))
-        pred = policy.sample_macro_trajectory({k: normed[k] for k in obs})
-        pred = post(pred)
-    err = pred[:, : cfg.chunk_size] - targets[:, : cfg.chunk_size]
-    return err.pow(2).mean().sqrt().item()
+        pred = post(policy.predict_action_chunk(pre(dict(obs))))
+    return (pred - targets).pow(2).mean().sqrt().item()
 
 
 def test_short_training_run_predicts_heldout_trajectories(tmp_path):
     torch.manual_seed(0)
-    spec = SyntheticSpec(num_episodes=12, num_points=64)
+    spec = SyntheticSpec(num_episodes=12, episode_length=20, with_pointcloud=False)
     write_synthetic_dataset(tmp_path / "ds", spec)
-    cfg = FocalConfig(device="cpu", down_dims=(32, 64, 128), optimizer_lr=1e-3, scheduler_warmup_steps=20)
+    cfg = FocalConfig(device="cpu", down_dims=(32, 64, 128), optimizer_lr=1e-3)
     meta = LeRobotDataset(repo_id="local/focal_synthetic", root=tmp_path / "ds").meta
     feats = dataset_to_policy_features(meta.features)
     cfg.output_features = {k: f for k, f in feats.items() if k == ACTION}
@@ -54,21 +58,21 @@ def test_short_training_run_predicts_heldout_trajectories(tmp_path):
     pre, post = make_focal_pre_post_processors(cfg, dataset_stats=meta.stats)
     policy = FocalPolicy(cfg)
     obs, targets = _heldout_windows(spec, cfg)
-    untrained = _proximal_rmse(policy, pre, post, obs, targets, cfg)
+    hold = (obs[OBS_STATE][:, -1:, :3] - targets).pow(2).mean().sqrt().item()
+    untrained = _proximal_rmse(policy, pre, post, obs, targets)
 
     policy.train()
     opt = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.optimizer_lr, betas=cfg.optimizer_betas)
-    keys = ["observation.state", "observation.pointcloud", ACTION]
-    for _ in range(400):
+    for _ in range(STEPS):
         idx = torch.randint(len(items), (64,))
-        batch = pre({k: torch.stack([items[i][k] for i in idx]) for k in keys})
+        batch = pre({k: torch.stack([items[i][k] for i in idx]) for k in (OBS_STATE, ACTION)})
         loss, _ = policy.forward(batch)
         opt.zero_grad()
         loss.backward()
         opt.step()
         policy.update()
-    trained = _proximal_rmse(policy, pre, post, obs, targets, cfg)
-    action_scale = targets.std().item()
-    print(f"proximal RMSE untrained={untrained:.4f} trained={trained:.4f} action std={action_scale:.3f}")
-    assert trained < 0.2 * untrained
-    assert trained < 0.15 * action_scale
+    trained = _proximal_rmse(policy, pre, post, obs, targets)
+    print(f"proximal RMSE: untrained={untrained:.4f} hold-position={hold:.4f} trained={trained:.4f}")
+    assert untrained > 3 * hold  # the baselines are what they claim: random flow is far off
+    assert trained < 0.25 * untrained
+    assert trained < hold
