@@ -15,7 +15,6 @@ from gymnasium import spaces
 
 from .common import (
     AGENT_POS_KEY,
-    DEFAULT_VOXEL_SIZE,
     EpisodeMetrics,
     make_rendering_cheap,
     PIXELS_KEY,
@@ -26,6 +25,7 @@ from .common import (
     uses_state,
 )
 from .focal_adroit import (
+    ADROIT_DEPTH_SIZE,
     ADROIT_STATE_DIM,
     ADROIT_TASKS,
     DEFAULT_ADROIT_CAMERA,
@@ -59,12 +59,12 @@ class FocalAdroitEnv(gym.Env):
         observation_width: int = 84,
         observation_height: int = 84,
         num_points: int = 512,
-        depth_width: int = 84,
-        depth_height: int = 84,
+        depth_width: int = ADROIT_DEPTH_SIZE,
+        depth_height: int = ADROIT_DEPTH_SIZE,
         workspace_low: tuple[float, float, float] = DEFAULT_ADROIT_WORKSPACE_LOW,
         workspace_high: tuple[float, float, float] = DEFAULT_ADROIT_WORKSPACE_HIGH,
         terminate_on_success: bool = True,
-        voxel_size: float = DEFAULT_VOXEL_SIZE,
+        voxel_size: float = 0.0,
         raycast_threads: int | None = None,
         metrics_path: str | None = None,
         cheap_rendering: bool = True,
