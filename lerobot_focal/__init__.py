@@ -9,5 +9,9 @@ without the optional extras.
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 from lerobot_focal import envs, robots, teleoperators  # noqa: E402,F401  (registration side effects)
+from lerobot_focal.datasets.fast_reader import install_from_env as _install_fast_reader
+
+# Opt-in in-memory dataset reader (docs/data_throughput.md): a no-op unless LEROBOT_FOCAL_FAST_READER=1.
+_install_fast_reader()
 
 __all__ = ["FocalConfig", "FocalPolicy", "make_focal_pre_post_processors"]

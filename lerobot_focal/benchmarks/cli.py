@@ -1,6 +1,7 @@
 """`lerobot-focal-bench`: the project's benchmarks behind one command.
 
     lerobot-focal-bench speed [--sizes cpu paper] [--device cpu|cuda] [--repeats 7] [--out docs/benchmarks]
+    lerobot-focal-bench data  [--root DATASET] ...   (stock vs fast dataset reader inside lerobot-train)
 """
 
 from __future__ import annotations
@@ -24,6 +25,17 @@ def main(argv: list[str] | None = None) -> int:
     speed.add_argument("--threads", type=int, default=None,
                        help="torch intra-op threads (default: torch's). On a shared machine 1 avoids oversubscription")
     speed.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
+    sub.add_parser("data", add_help=False,
+                   help="data vs update time per batch in lerobot-train: stock reader vs the fast reader "
+                        "(arguments: see `lerobot-focal-bench data --help`)")
+    if argv is None:
+        import sys
+
+        argv = sys.argv[1:]
+    if argv[:1] == ["data"]:
+        from lerobot_focal.benchmarks.data_throughput import main as data_main
+
+        return data_main(argv[1:])
     args = parser.parse_args(argv)
 
     if args.command == "speed":

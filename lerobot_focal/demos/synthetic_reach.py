@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -41,8 +42,10 @@ def train(dataset_root: Path, out_dir: Path, steps: int, batch_size: int) -> Pat
         f"--save_freq={steps}",
         f"--log_freq={max(steps // 15, 1)}",
     ]
-    print("[demo] $", " ".join(cmd), flush=True)
-    subprocess.run(cmd, check=True)
+    # The plugin's in-memory reader (docs/data_throughput.md): same items as LeRobot's, ~40x cheaper to read.
+    env = {**os.environ, "LEROBOT_FOCAL_FAST_READER": "1"}
+    print("[demo] $ LEROBOT_FOCAL_FAST_READER=1", " ".join(cmd), flush=True)
+    subprocess.run(cmd, check=True, env=env)
     return out_dir / "checkpoints" / "last" / "pretrained_model"
 
 

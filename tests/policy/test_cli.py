@@ -26,8 +26,8 @@ REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 
-def _train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+def _train(*args: str, cwd: Path, **extra_env: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **extra_env}
     proc = subprocess.run([str(BIN / "lerobot-train"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise AssertionError(f"lerobot-train failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
@@ -52,13 +52,17 @@ def trained_run(tmp_path_factory):
         "--log_freq=1",
         "--batch_size=4",
         cwd=tmp,
+        # The first run uses the plugin's opt-in fast reader, the resumed one LeRobot's stock reader.
+        LEROBOT_FOCAL_FAST_READER="1",
     )
     return tmp, root, out, first
 
 
 def test_train_saves_checkpoints_with_processors(trained_run):
     _, _, out, first = trained_run
-    assert "focal" in (first.stdout + first.stderr)
+    log = first.stdout + first.stderr
+    assert "focal" in log
+    assert "columns cached in memory" in log  # LEROBOT_FOCAL_FAST_READER=1 reached lerobot-train via the plugin
     for step in ("000002", "000004"):
         model_dir = out / "checkpoints" / step / "pretrained_model"
         for name in ("config.json", "model.safetensors", "train_config.json"):
@@ -73,7 +77,8 @@ def test_train_saves_checkpoints_with_processors(trained_run):
 def test_resume_continues_from_the_saved_step(trained_run):
     tmp, _, out, _ = trained_run
     train_cfg = out / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
-    _train(f"--config_path={train_cfg}", "--resume=true", "--steps=6", cwd=tmp)
+    resumed = _train(f"--config_path={train_cfg}", "--resume=true", "--steps=6", cwd=tmp, LEROBOT_FOCAL_FAST_READER="0")
+    assert "columns cached in memory" not in resumed.stdout + resumed.stderr
     assert (out / "checkpoints" / "000006" / "pretrained_model" / "model.safetensors").is_file()
     state = json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 6
