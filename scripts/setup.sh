@@ -9,39 +9,25 @@ VENV="${VENV:-.venv}"
 
 is_py312() { "$1" -c 'import sys; raise SystemExit(sys.version_info < (3, 12))' >/dev/null 2>&1; }
 
+# Python 3.12 first: it is what LeRobot 0.6 and every pinned dependency here (mujoco, ur-rtde, metaworld)
+# were tested with; a newer 3.x only if no 3.12 exists.
 find_python() {
     local candidates=()
     [ -n "${PYTHON:-}" ] && candidates+=("$PYTHON")
-    candidates+=(python3.13 python3.12)
-    if command -v pyenv >/dev/null 2>&1; then
-        # pyenv's shim refuses to run a version that is not selected; ask pyenv for the real binaries.
-        local root; root="$(pyenv root)"
-        candidates+=($(ls -d "$root"/versions/3.1[2-9]*/bin/python3 2>/dev/null | sort -rV))
-    fi
-    candidates+=(/root/.pyenv/versions/3.12*/bin/python3 /usr/local/bin/python3.12 /usr/bin/python3.12 python3)
+    local root=""
+    # pyenv's shim refuses to run a version that is not selected; look for the real binaries instead.
+    command -v pyenv >/dev/null 2>&1 && root="$(pyenv root)"
+    [ -z "$root" ] && [ -d "$HOME/.pyenv" ] && root="$HOME/.pyenv"
+    candidates+=(python3.12)
+    [ -n "$root" ] && candidates+=($(ls -d "$root"/versions/3.12*/bin/python3 2>/dev/null | sort -rV))
+    candidates+=(/usr/local/bin/python3.12 /usr/bin/python3.12 python3.13)
+    [ -n "$root" ] && candidates+=($(ls -d "$root"/versions/3.1[3-9]*/bin/python3 2>/dev/null | sort -rV))
+    candidates+=(python3)
     for c in "${candidates[@]}"; do
         if command -v "$c" >/dev/null 2>&1 && is_py312 "$c"; then command -v "$c"; return 0; fi
     done
     return 1
 }
-
-# System libraries, installed with apt when missing and we are root (otherwise a warning says what to install):
-# - OSMesa: MuJoCo renders offscreen (depth for point clouds, pixels, eval videos) through EGL or OSMesa;
-#   neither needs a GPU.
-# - FFmpeg's shared libraries: LeRobot decodes dataset videos with torchcodec, which loads them at import;
-#   without them every lerobot-* command prints a long traceback and falls back to the slower pyav.
-missing=()
-ldconfig -p 2>/dev/null | grep -q -E "libOSMesa\.so|libEGL\.so" || missing+=(libosmesa6 libgl1)
-ldconfig -p 2>/dev/null | grep -q "libavutil\.so" || missing+=(ffmpeg)
-if [ ${#missing[@]} -gt 0 ]; then
-    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-        echo "[setup] apt-get install ${missing[*]}"
-        apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null \
-            || echo "[setup] warning: apt-get install ${missing[*]} failed" >&2
-    else
-        echo "[setup] warning: missing system packages: ${missing[*]} (Debian names); install them for rendering and video decoding" >&2
-    fi
-fi
 
 if [ ! -x "$VENV/bin/python" ] || ! is_py312 "$VENV/bin/python"; then
     if ! PY="$(find_python)"; then
