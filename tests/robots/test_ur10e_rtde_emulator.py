@@ -110,6 +110,11 @@ def test_dropped_connection_mid_episode_stops_arm_with_clear_error(robot, emulat
         robot.send_action({"ee_x.vel": 0.2})
         time.sleep(1 / robot.config.control_hz)
     emulator.drop_connections()  # the network cable is pulled while the arm moves
+    # Let ur_rtde's receive thread notice first (the race that once surfaced LeRobot's generic "not connected"
+    # instead of the clear fault): the next command must still report the lost connection itself.
+    deadline = time.monotonic() + 0.5
+    while robot.backend.recv.isConnected() and time.monotonic() < deadline:
+        time.sleep(0.01)
     with pytest.raises(RobotFaultError, match="lost the RTDE connection"):
         for _ in range(50):  # the receive thread notices within a few ms; the watchdog too
             robot.send_action({"ee_x.vel": 0.2})

@@ -77,6 +77,9 @@ class UR10e(Robot):
         super().__init__(config)
         self.config = config
         self.backend: ArmBackend | None = None
+        # A lost connection must reach the caller once as the clear RobotFaultError, not as LeRobot's generic
+        # "not connected" that the decorators raise when is_connected turns False between two calls.
+        self._fault_reported = False
         self.safety = SafetyFilter(config.safety, config.control_hz)
         self.watchdog: Watchdog | None = None
         self._gripper_cmd: float | None = None
@@ -124,7 +127,9 @@ class UR10e(Robot):
     # -- lifecycle --------------------------------------------------------------------------------------------
     @property
     def is_connected(self) -> bool:
-        return self.backend is not None and self.backend.is_connected
+        if self.backend is None:
+            return False
+        return self.backend.is_connected or not self._fault_reported
 
     @property
     def is_calibrated(self) -> bool:
@@ -141,6 +146,7 @@ class UR10e(Robot):
         backend = make_backend(self.config)
         backend.connect()
         self.backend = backend
+        self._fault_reported = False
         self._target = None
         self.watchdog = Watchdog(
             self.config.safety.watchdog_timeout_s, on_timeout=backend.stop, health_check=backend.check_health
@@ -199,6 +205,7 @@ class UR10e(Robot):
             self.watchdog.raise_if_faulted()
             self.backend.check_health()
         except RobotFaultError:
+            self._fault_reported = True
             self._stop_quietly()
             raise
 
@@ -288,6 +295,7 @@ class UR10e(Robot):
                 self._gripper_cmd = float(np.clip(gripper, 0.0, 1.0))
                 self.backend.set_gripper(self._gripper_cmd * AG95_MAX_OPENING_M)
         except RobotFaultError:
+            self._fault_reported = True
             self._stop_quietly()
             raise
         self.watchdog.kick()
