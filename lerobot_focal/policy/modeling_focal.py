@@ -82,6 +82,7 @@ class FocalPolicy(PreTrainedPolicy):
         self._sampler = config.time_sampler_spec()
         self._obs_keys = config.used_observation_keys
         self._queues: dict[str, deque] = {}
+        self._rank_rng_decorrelated = False
         self.reset()
 
     # --- LeRobot interface ---------------------------------------------------------------------------------
@@ -124,6 +125,7 @@ class FocalPolicy(PreTrainedPolicy):
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Training loss for a batch from LeRobotDataset (observations (B, n_obs, ...), actions (B, L, d))."""
+        self._decorrelate_ranks_once()
         obs = self._observations(batch, training=True)
         m1 = self._check_actions(batch)
         cond = self.model.encode(obs)
@@ -165,6 +167,21 @@ class FocalPolicy(PreTrainedPolicy):
             actions = self.predict_action_chunk(batch, noise=noise)
             self._queues[ACTION].extend(actions.transpose(0, 1))
         return self._queues[ACTION].popleft()
+
+    def _decorrelate_ranks_once(self) -> None:
+        """Give each data-parallel process its own noise M_0 and times (τ, r).
+
+        `lerobot-train` seeds every Accelerate process with the same seed, and the noise and times come from the
+        global torch generator, so without this all ranks would draw identical samples on different data. Rank 0
+        keeps its stream (a multi-process run's rank 0 reproduces the one-process run); rank k > 0 reseeds from
+        its own stream plus k, so everything still derives from `--seed` (and the RNG state restored on resume).
+        """
+        if self._rank_rng_decorrelated:
+            return
+        self._rank_rng_decorrelated = True
+        dist = torch.distributed
+        if dist.is_available() and dist.is_initialized() and dist.get_rank() > 0:
+            torch.manual_seed(int(torch.randint(0, 2**62, ())) + dist.get_rank())
 
     # --- sampling ------------------------------------------------------------------------------------------
     def sample_macro_trajectory(self, obs: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:

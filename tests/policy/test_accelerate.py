@@ -184,12 +184,6 @@ def test_resume_with_two_processes(runs):
     assert sorted(losses) == [5, 6] and all(math.isfinite(v) for v in losses.values())
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="lerobot-train seeds every rank with the same seed (accelerate set_seed without device_specific), "
-    "and FocalPolicy.forward draws M_0 and (tau, r) from the global torch RNG, so all ranks draw identical "
-    "noise and times; see docs/multi_gpu.md",
-)
 def test_each_rank_draws_its_own_noise_and_times(runs):
     ranks = [_records(runs["tmp"] / "probe_two", rank, "loss") for rank in (0, 1)]
     for a, b in zip(*ranks, strict=True):
