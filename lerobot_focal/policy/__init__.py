@@ -3,5 +3,6 @@
 from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig
 from lerobot_focal.policy.modeling_focal import FocalPolicy
 from lerobot_focal.policy.processor_focal import make_focal_pre_post_processors
+from lerobot_focal.policy import diffusion_fco  # noqa: E402,F401  (registers --policy.type=diffusion_fco)
 
 __all__ = ["ABLATIONS", "FocalConfig", "FocalPolicy", "make_focal_pre_post_processors"]
