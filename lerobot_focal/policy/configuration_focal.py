@@ -18,7 +18,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
-from lerobot.configs.types import FeatureType
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
@@ -73,6 +73,25 @@ class FocalConfig(PreTrainedConfig):
     use_pointcloud: bool = True
     use_pointcloud_color: bool = False  # use xyz+rgb when the cloud has 6 channels
     pointcloud_feature_dim: int = 64
+    # Point cloud from a stored depth map (robots such as `ur10e` record `observation.images.<cam>_depth`, since
+    # LeRobot 0.6.1 cannot record a point cloud). Naming a depth key here adds `pointcloud_key` (P, 3) to the
+    # input features and a `focal_depth_to_pointcloud` step to the preprocessor: back-projection → crop →
+    # farthest point sampling with `lerobot_focal.envs.pointcloud`, identical at training (decoded depth video)
+    # and at rollout (the robot's raw uint16 frame). The camera info and crop are stored in the saved step.
+    pointcloud_from_depth: str | None = None  # e.g. "observation.images.front_depth"
+    # cameras.json written by the robot on connect ($HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json);
+    # None → `<dataset root>/meta/cameras.json`.
+    pointcloud_camera_info: str | None = None
+    pointcloud_camera: str | None = None  # entry in that file; None → from the key ("…images.front_depth" → "front")
+    pointcloud_crop_min: tuple[float, float, float] | None = None  # base-frame workspace box, metres
+    pointcloud_crop_max: tuple[float, float, float] | None = None
+    pointcloud_num_points: int = 512
+    pointcloud_voxel_size: float = 0.0  # > 0: voxel grid before FPS (faster on 640×480 frames)
+    # Unit of *float* depth, i.e. the decoded dataset (`--dataset.depth_output_unit`, LeRobot's default "mm").
+    # Integer frames (the robot's raw uint16) are always raw sensor units × the camera's depth_scale.
+    pointcloud_depth_unit: str = "mm"
+    # Closer than this (m) is "no return": LeRobot's depth video decodes a 0 (no return) as 10 mm.
+    pointcloud_min_depth: float = 0.05
     use_state: bool = True
     use_env_state: bool = False
     state_feature_dim: int = 64
@@ -172,9 +191,66 @@ class FocalConfig(PreTrainedConfig):
             raise ValueError(f"num_inference_steps must be ≥ 1, got {self.num_inference_steps}.")
         if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0:
             raise ValueError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
+        if self.pointcloud_from_depth is not None:
+            self._validate_pointcloud_from_depth()
         # Building the specs validates every method switch with a message naming the allowed values.
         self.objective_spec()
         self.time_sampler_spec()
+
+    def _validate_pointcloud_from_depth(self) -> None:
+        if self.pointcloud_crop_min is None or self.pointcloud_crop_max is None:
+            raise ValueError(
+                f"pointcloud_from_depth={self.pointcloud_from_depth!r} needs the workspace box the cloud is cropped "
+                "to, in the robot base frame (metres): pass --policy.pointcloud_crop_min='[x,y,z]' and "
+                "--policy.pointcloud_crop_max='[x,y,z]' (the ur10e robot's default box is "
+                "--policy.pointcloud_crop_min='[-1.1,-0.7,0.003]' --policy.pointcloud_crop_max='[-0.2,0.4,0.8]')."
+            )
+        lo, hi = tuple(self.pointcloud_crop_min), tuple(self.pointcloud_crop_max)
+        if len(lo) != 3 or len(hi) != 3 or any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(f"pointcloud_crop_min {lo} must be below pointcloud_crop_max {hi} on x, y and z.")
+        if self.pointcloud_num_points < 1:
+            raise ValueError(f"pointcloud_num_points must be ≥ 1, got {self.pointcloud_num_points}.")
+        if self.pointcloud_depth_unit not in ("mm", "m"):
+            raise ValueError(f"pointcloud_depth_unit must be 'mm' or 'm', got {self.pointcloud_depth_unit!r}.")
+        if not self.use_pointcloud:
+            raise ValueError("pointcloud_from_depth is set but use_pointcloud=false: drop one of the two.")
+        if self.use_pointcloud_color:
+            raise ValueError("pointcloud_from_depth makes an xyz (P, 3) cloud; use_pointcloud_color needs (P, 6).")
+        # A config loaded from a checkpoint already lists the cloud; one from the command line gets it from the
+        # dataset hook below (or here, when input features were given explicitly).
+        if self.input_features and self.pointcloud_key not in self.input_features:
+            self.input_features[self.pointcloud_key] = self.depth_pointcloud_feature()
+
+    @property
+    def pointcloud_camera_name(self) -> str | None:
+        """Camera whose intrinsics unproject `pointcloud_from_depth` ("observation.images.front_depth" → "front")."""
+        if self.pointcloud_camera:
+            return self.pointcloud_camera
+        if self.pointcloud_from_depth is None:
+            return None
+        name = self.pointcloud_from_depth.rsplit(".", 1)[-1]
+        return name[: -len("_depth")] if name.endswith("_depth") else name
+
+    def depth_pointcloud_feature(self) -> PolicyFeature:
+        return PolicyFeature(type=FeatureType.STATE, shape=(self.pointcloud_num_points, 3))
+
+    def set_dataset_feature_metadata(self, features: dict) -> None:
+        """LeRobot hook (`make_policy`, after it filled `input_features` from the dataset).
+
+        With `pointcloud_from_depth`, the dataset holds depth but no point cloud: check the depth key is there and
+        declare `pointcloud_key` as an input, so the policy is built for it and `config.json` lists it.
+        """
+        key = self.pointcloud_from_depth
+        if key is None:
+            return
+        if key not in features:
+            depth = [k for k, ft in features.items() if (ft.get("info") or {}).get("is_depth_map")]
+            raise ValueError(
+                f"pointcloud_from_depth={key!r} is not a feature of the dataset. Its depth features are {depth}; "
+                "pass one of them as --policy.pointcloud_from_depth (or record depth: for ur10e, a RealSense "
+                "camera with use_depth: true; the sim backend always records `front_depth`)."
+            )
+        self.input_features[self.pointcloud_key] = self.depth_pointcloud_feature()
 
     def _apply_ablation(self) -> None:
         if self.ablation is None:

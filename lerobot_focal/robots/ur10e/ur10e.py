@@ -22,7 +22,9 @@ as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W
 Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
 extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
 to be stored with the dataset (:func:`.camera_info.save_camera_infos`). :meth:`pointcloud_from_depth` turns a
-depth frame into the (512, 3) ``observation.pointcloud`` with the project's shared depth->points code.
+depth frame into the (512, 3) ``observation.pointcloud`` with the project's shared depth->points code. A
+``focal`` policy trained with ``--policy.pointcloud_from_depth=observation.images.<camera>_depth`` does the
+same conversion in its own preprocessor (``lerobot_focal.policy.processor_focal``), at training and rollout.
 """
 
 from __future__ import annotations
