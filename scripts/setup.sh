@@ -43,11 +43,11 @@ fi
 
 # Always run pip: on a set-up venv it only checks that pyproject's requirements are still met (seconds).
 if "$VENV/bin/python" -c 'import lerobot' >/dev/null 2>&1; then
-    echo "[setup] checking lerobot_focal[sim,robot,dev] in $VENV"
+    echo "[setup] checking lerobot_focal[sim,robot,dev,ray] in $VENV"
 else
-    echo "[setup] installing lerobot_focal[sim,robot,dev] into $VENV (first time: ~4 min, ~6 GB: PyPI's torch is a CUDA build)"
+    echo "[setup] installing lerobot_focal[sim,robot,dev,ray] into $VENV (first time: ~4 min, ~6 GB: PyPI's torch is a CUDA build)"
 fi
-"$VENV/bin/python" -m pip install --quiet --progress-bar off -e ".[sim,robot,dev]" 2>&1 | { grep -v "^WARNING: Location" || true; }
+"$VENV/bin/python" -m pip install --quiet --progress-bar off -e ".[sim,robot,dev,ray]" 2>&1 | { grep -v "^WARNING: Location" || true; }
 if ! out="$("$VENV/bin/python" -c 'import lerobot, lerobot_policy_focal; print(lerobot.__version__)' 2>&1)"; then
     echo "$out" >&2; echo "error: the install in $VENV does not import; see above." >&2; exit 1
 fi

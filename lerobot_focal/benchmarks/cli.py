@@ -2,6 +2,8 @@
 
     lerobot-focal-bench speed [--sizes cpu paper] [--device cpu|cuda] [--repeats 7] [--out docs/benchmarks]
     lerobot-focal-bench data  [--root DATASET] ...   (stock vs fast dataset reader inside lerobot-train)
+    lerobot-focal-bench grid  --preset cpu|paper --tasks ... --methods ... --out DIR   (the paper's protocol)
+    lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("data", add_help=False,
                    help="data vs update time per batch in lerobot-train: stock reader vs the fast reader "
                         "(arguments: see `lerobot-focal-bench data --help`)")
+    sub.add_parser("grid", add_help=False, help="(task x method x seed) through lerobot-train, the paper's protocol "
+                                                 "(see `lerobot-focal-bench grid --help`)")
+    sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
     if argv is None:
         import sys
 
@@ -36,6 +41,14 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.data_throughput import main as data_main
 
         return data_main(argv[1:])
+    if argv[:1] == ["grid"]:
+        from lerobot_focal.benchmarks.grid.driver import main as grid_main
+
+        return grid_main(argv[1:])
+    if argv[:1] == ["report"]:
+        from lerobot_focal.benchmarks.grid.report import main as report_main
+
+        return report_main(argv[1:])
     args = parser.parse_args(argv)
 
     if args.command == "speed":

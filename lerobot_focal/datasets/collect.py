@@ -6,9 +6,10 @@
 * ``--tasks``: MetaWorld v3 task names and/or difficulty groups (easy, medium, hard, very_hard), comma-separated.
 * Each task gets ``--episodes`` *successful* episodes (default 10). Attempts use seeds ``seed, seed+1, ...``;
   failed attempts are dropped, and a task gives up after ``--max_attempts`` (default 3 x episodes).
-* ``--obs_types``: any of state, pointcloud, pixels (comma-separated). The dataset always has ``action`` (4,)
-  and ``observation.state`` (9,); pointcloud adds ``observation.pointcloud`` (512, 3) and pixels adds
-  ``observation.image`` (H, W, 3), the keys ``focal_metaworld`` envs deliver to the policy at evaluation.
+* ``--obs_types``: any of state, pointcloud, pixels, env_state (comma-separated). The dataset always has
+  ``action`` (4,) and ``observation.state`` (9,); pointcloud adds ``observation.pointcloud`` (512, 3), pixels adds
+  ``observation.image`` (H, W, 3) and env_state adds MetaWorld's 39-d ``observation.environment_state``: the
+  keys ``focal_metaworld`` envs deliver to the policy at evaluation (``--env.env_state=true`` for the last).
 * Interruption (Ctrl-C, SIGTERM): the episode in progress is dropped, the writer is finalized, and what was
   saved is a valid dataset. Running the same command again resumes: it counts the episodes each task already
   has and only collects the rest (seeds already tried are not reused).
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 STATE_FILE = "focal_collect_state.json"
-VALID_OBS = ("state", "pointcloud", "pixels")
+VALID_OBS = ("state", "pointcloud", "pixels", "env_state")
 
 
 @dataclass
@@ -52,7 +53,11 @@ class CollectConfig:
 
 
 def dataset_features(cfg: CollectConfig) -> dict[str, dict]:
-    from lerobot_focal.envs.focal_metaworld import METAWORLD_ACTION_DIM, METAWORLD_STATE_DIM
+    from lerobot_focal.envs.focal_metaworld import (
+        METAWORLD_ACTION_DIM,
+        METAWORLD_ENV_STATE_DIM,
+        METAWORLD_STATE_DIM,
+    )
 
     features: dict[str, dict] = {
         "action": {"dtype": "float32", "shape": (METAWORLD_ACTION_DIM,), "names": ["dx", "dy", "dz", "gripper"]},
@@ -65,6 +70,10 @@ def dataset_features(cfg: CollectConfig) -> dict[str, dict]:
     if "pointcloud" in cfg.obs_types:
         features["observation.pointcloud"] = {
             "dtype": "float32", "shape": (cfg.num_points, 3), "names": ["points", "xyz"],
+        }
+    if "env_state" in cfg.obs_types:
+        features["observation.environment_state"] = {
+            "dtype": "float32", "shape": (METAWORLD_ENV_STATE_DIM,), "names": None,
         }
     if "pixels" in cfg.obs_types:
         features["observation.image"] = {
@@ -165,6 +174,8 @@ def rollout_expert(env, seed: int, max_steps: int, want_pixels: bool, stop: _Gra
         frame = {"observation.state": obs["agent_pos"], "action": action}
         if "pointcloud" in obs:
             frame["observation.pointcloud"] = obs["pointcloud"]
+        if "environment_state" in obs:
+            frame["observation.environment_state"] = obs["environment_state"]
         if want_pixels:
             frame["observation.image"] = obs["pixels"] if "pixels" in obs else np.ascontiguousarray(env.render())
         frames.append(frame)
@@ -186,6 +197,7 @@ def collect(cfg: CollectConfig) -> dict:
     env_cfg = FocalMetaworldEnvConfig(
         task=",".join(cfg.tasks), obs_type=_env_obs_type(cfg.obs_types), episode_length=cfg.max_steps,
         observation_width=cfg.image_size, observation_height=cfg.image_size, num_points=cfg.num_points,
+        env_state="env_state" in cfg.obs_types,
     )
     tasks = list(dict.fromkeys(t for group in env_cfg.tasks_by_group.values() for t in group))
     features = dataset_features(cfg)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from lerobot.configs import FeatureType, PolicyFeature
-from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
 
 OBS_TYPES: tuple[str, ...] = ("state", "pointcloud", "pixels", "pixels_agent_pos")
 
@@ -15,6 +15,9 @@ OBS_TYPES: tuple[str, ...] = ("state", "pointcloud", "pixels", "pixels_agent_pos
 AGENT_POS_KEY = "agent_pos"
 PIXELS_KEY = "pixels"
 POINTCLOUD_KEY = "pointcloud"
+#: The simulator's full low-dimensional observation (object poses included); LeRobot maps it to
+#: ``observation.environment_state``.
+ENV_STATE_KEY = "environment_state"
 #: Voxel size (m) before FPS in the sim envs: 0.01 m is about the pixel footprint of a 128x128 view of the
 #: table, so it only thins the densest regions, and it keeps pure-numpy FPS inside the 30 obs/s budget.
 DEFAULT_VOXEL_SIZE = 0.01
@@ -40,7 +43,8 @@ def uses_pointcloud(obs_type: str) -> bool:
 
 
 def env_features(
-    obs_type: str, action_dim: int, state_dim: int, num_points: int, image_hw: tuple[int, int]
+    obs_type: str, action_dim: int, state_dim: int, num_points: int, image_hw: tuple[int, int],
+    env_state_dim: int | None = None,
 ) -> dict[str, PolicyFeature]:
     """Env-side feature declaration (keys = raw env keys), as LeRobot's EnvConfig.features expects."""
     check_obs_type(obs_type)
@@ -52,11 +56,19 @@ def env_features(
         features[POINTCLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(num_points, 3))
     if uses_pixels(obs_type):
         features[PIXELS_KEY] = PolicyFeature(type=FeatureType.VISUAL, shape=(*image_hw, 3))
+    if env_state_dim is not None:
+        features[ENV_STATE_KEY] = PolicyFeature(type=FeatureType.ENV, shape=(env_state_dim,))
     return features
 
 
 def env_features_map() -> dict[str, str]:
-    return {ACTION: ACTION, AGENT_POS_KEY: OBS_STATE, PIXELS_KEY: OBS_IMAGE, POINTCLOUD_KEY: OBS_POINTCLOUD}
+    return {
+        ACTION: ACTION,
+        AGENT_POS_KEY: OBS_STATE,
+        PIXELS_KEY: OBS_IMAGE,
+        POINTCLOUD_KEY: OBS_POINTCLOUD,
+        ENV_STATE_KEY: OBS_ENV_STATE,
+    }
 
 
 def resolve_names(requested: str, valid: Iterable[str], groups: dict[str, list[str]], what: str) -> list[str]:

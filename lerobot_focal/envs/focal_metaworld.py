@@ -14,7 +14,15 @@ from lerobot.configs import PolicyFeature
 from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
 from lerobot.processor import PolicyProcessorPipeline
 
-from .common import DEFAULT_VOXEL_SIZE, check_obs_type, env_features, env_features_map, resolve_names, uses_pointcloud
+from .common import (
+    DEFAULT_VOXEL_SIZE,
+    check_obs_type,
+    env_features,
+    env_features_map,
+    resolve_names,
+    uses_pixels,
+    uses_pointcloud,
+)
 from .processor import PointCloudObservationStep
 
 if TYPE_CHECKING:  # the env module imports metaworld and mujoco: only load it when an env is built
@@ -22,6 +30,8 @@ if TYPE_CHECKING:  # the env module imports metaworld and mujoco: only load it w
 
 METAWORLD_STATE_DIM = 9
 METAWORLD_ACTION_DIM = 4
+#: MetaWorld v3's own observation: hand, gripper, two object poses, the previous frame of those, goal.
+METAWORLD_ENV_STATE_DIM = 39
 #: DP3 moves camera ``corner2`` here; LeRobot's own metaworld env uses another position.
 DP3_CORNER2_POS: tuple[float, float, float] = (0.6, 0.295, 0.8)
 #: World-frame box around the table top, objects and arm; drops floor, back walls and background.
@@ -73,6 +83,9 @@ class FocalMetaworldEnvConfig(EnvConfig):
     # DP3/FocalPolicy episodes are 200 env steps.
     episode_length: int = 200
     obs_type: str = "pointcloud"
+    # Also emit MetaWorld's 39-d observation (object poses) as observation.environment_state. It is what
+    # LeRobot's `diffusion` needs without images, so the CPU benchmark gives every method the same input.
+    env_state: bool = False
     render_mode: str = "rgb_array"
     camera_name: str = "corner2"
     camera_pos: tuple[float, float, float] | None = DP3_CORNER2_POS
@@ -91,12 +104,21 @@ class FocalMetaworldEnvConfig(EnvConfig):
     metrics_path: str | None = None
     # Shadows and reflections off in RGB frames: ~8x faster with software OpenGL (pixels obs and eval videos).
     cheap_rendering: bool = True
+    # False: render() (videos only, never observations) returns a blank 16x16 frame. `lerobot-train` renders
+    # every env of 4 evaluation episodes to video at each evaluation (hard-coded); with software OpenGL that was
+    # ~70 % of a benchmark run's time here. The benchmark grid turns it off; simulation and metrics are unchanged.
+    render_videos: bool = True
     multitask_eval: bool = True
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=env_features_map)
 
     def __post_init__(self) -> None:
         check_obs_type(self.obs_type)
+        if not self.render_videos and uses_pixels(self.obs_type):
+            raise ValueError(
+                f"render_videos=false blanks rendered frames, but obs_type={self.obs_type!r} observes pixels: "
+                "keep render_videos=true or use obs_type state/pointcloud"
+            )
         self.tasks_by_group = resolve_metaworld_tasks(self.task)
         self.features = env_features(
             self.obs_type,
@@ -104,12 +126,14 @@ class FocalMetaworldEnvConfig(EnvConfig):
             state_dim=METAWORLD_STATE_DIM,
             num_points=self.num_points,
             image_hw=(self.observation_height, self.observation_width),
+            env_state_dim=METAWORLD_ENV_STATE_DIM if self.env_state else None,
         )
 
     @property
     def gym_kwargs(self) -> dict[str, Any]:
         return {
             "obs_type": self.obs_type,
+            "env_state": self.env_state,
             "camera_name": self.camera_name,
             "camera_pos": self.camera_pos,
             "episode_length": self.episode_length,
@@ -124,6 +148,7 @@ class FocalMetaworldEnvConfig(EnvConfig):
             "raycast_threads": self.raycast_threads,
             "metrics_path": self.metrics_path,
             "cheap_rendering": self.cheap_rendering,
+            "render_videos": self.render_videos,
         }
 
     def make_single_env(self, task: str | None = None) -> FocalMetaworldEnv:

@@ -25,6 +25,7 @@ from lerobot.envs.metaworld import MetaworldEnv
 from .common import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
+    ENV_STATE_KEY,
     EpisodeMetrics,
     make_rendering_cheap,
     PIXELS_KEY,
@@ -38,6 +39,7 @@ from .focal_metaworld import (
     DEFAULT_WORKSPACE_HIGH,
     DEFAULT_WORKSPACE_LOW,
     DP3_CORNER2_POS,
+    METAWORLD_ENV_STATE_DIM,
     METAWORLD_STATE_DIM,
 )
 from .pointcloud import PointCloudSpec, WorkspaceBounds
@@ -69,6 +71,8 @@ class FocalMetaworldEnv(MetaworldEnv):
         visualization_height: int = 480,
         metrics_path: str | None = None,
         cheap_rendering: bool = True,
+        env_state: bool = False,
+        render_videos: bool = True,
     ) -> None:
         check_obs_type(obs_type)
         # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
@@ -83,6 +87,7 @@ class FocalMetaworldEnv(MetaworldEnv):
             visualization_height=visualization_height,
         )
         self.obs_type = obs_type
+        self.env_state = env_state
         self.camera_pos = camera_pos
         self._max_episode_steps = episode_length
         self.pointcloud_spec = PointCloudSpec(
@@ -93,6 +98,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         self._pc_sensor: RayCastPointCloudSensor | None = None
         self.metrics = EpisodeMetrics(self.task, metrics_path)
         self.cheap_rendering = cheap_rendering
+        self.render_videos = render_videos
         self._viewer_ready = False
         self.last_raw_obs: np.ndarray | None = None  # MetaWorld's 39-d observation, what its experts read
 
@@ -103,6 +109,8 @@ class FocalMetaworldEnv(MetaworldEnv):
             obs_spaces[POINTCLOUD_KEY] = spaces.Box(-10.0, 10.0, (num_points, 3), np.float32)
         if uses_pixels(obs_type):
             obs_spaces[PIXELS_KEY] = spaces.Box(0, 255, (observation_height, observation_width, 3), np.uint8)
+        if env_state:
+            obs_spaces[ENV_STATE_KEY] = spaces.Box(-np.inf, np.inf, (METAWORLD_ENV_STATE_DIM,), np.float32)
         self.observation_space = spaces.Dict(obs_spaces)
 
     def _ensure_env(self) -> None:
@@ -155,6 +163,8 @@ class FocalMetaworldEnv(MetaworldEnv):
 
     def render(self) -> np.ndarray:
         """RGB frame of ``camera_name`` (LeRobot's orientation fix for corner2), shadows off by default."""
+        if not self.render_videos:
+            return np.zeros((16, 16, 3), dtype=np.uint8)  # see FocalMetaworldEnvConfig.render_videos
         self._ensure_env()
         if not self._viewer_ready:
             if self.cheap_rendering:
@@ -177,6 +187,8 @@ class FocalMetaworldEnv(MetaworldEnv):
             obs[POINTCLOUD_KEY] = self.pointcloud()
         if uses_pixels(self.obs_type):
             obs[PIXELS_KEY] = np.ascontiguousarray(self.render())
+        if self.env_state:
+            obs[ENV_STATE_KEY] = self.last_raw_obs.astype(np.float32)
         return obs
 
     def reset(self, seed: int | None = None, **kwargs) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -1,0 +1,143 @@
+"""`lerobot-focal-bench grid`: run (task × method × seed) through `lerobot-train`, resumably, then report.
+
+    lerobot-focal-bench grid --preset cpu --tasks pick-place,sweep-into,disassemble,push-wall,basketball \\
+        --methods core --out docs/benchmarks/grid_cpu --jobs 2
+    lerobot-focal-bench grid --preset paper --tasks medium --methods all --executor ray --ray-address auto \\
+        --gpus-per-run 1 --cpus-per-run 8 --work /shared/bench --out results/grid_paper
+
+``--out`` holds ``results.jsonl`` (one line per finished run, the resume point), ``report.md`` and the plots;
+``--work`` holds datasets, checkpoints and logs. Rerunning the same command skips every run that has an ``ok``
+line and retries failed ones; ``lerobot-focal-bench report --out DIR`` re-renders the report alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from .datasets import ensure_task_data
+from .methods import resolve_methods
+from .presets import PRESETS
+from .results import ResultsFile
+from .run import RunSpec
+
+DEV_TASKS = "pick-place,sweep-into,disassemble,push-wall,basketball"
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="lerobot-focal-bench grid", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+    p.add_argument("--tasks", default=DEV_TASKS,
+                   help="MetaWorld v3 tasks and/or groups (easy, medium, hard, very_hard); default: the development set")
+    p.add_argument("--methods", default="core", help="comma-separated methods, 'core' or 'all' (default: core)")
+    p.add_argument("--seeds", default=None, help="comma-separated training seeds (default: the preset's)")
+    p.add_argument("--out", type=Path, required=True, help="results.jsonl, report.md and plots go here")
+    p.add_argument("--work", type=Path, default=None, help="datasets, checkpoints, logs (default: outputs/bench)")
+    p.add_argument("--executor", choices=["local", "ray"], default="local")
+    p.add_argument("--jobs", type=int, default=1, help="local executor: runs at a time (default 1)")
+    p.add_argument("--ray-address", default=None,
+                   help="Ray: 'auto' or an address to join a cluster; default: start a local Ray instance")
+    p.add_argument("--cpus-per-run", type=float, default=1.0)
+    p.add_argument("--gpus-per-run", type=float, default=0.0)
+    p.add_argument("--retries", type=int, default=1, help="extra attempts for a failed run (default 1)")
+    p.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
+    for name in ("steps", "batch_size", "eval_every", "eval_episodes", "demos", "heldout_demos", "episode_length"):
+        p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
+                       help=f"override the preset's {name}")
+    p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
+    return p.parse_args(argv)
+
+
+def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
+    from lerobot_focal.envs.focal_metaworld import resolve_metaworld_tasks
+
+    overrides = {k: v for k, v in dict(
+        steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+        demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
+    ).items() if v is not None}
+    preset = PRESETS[args.preset].with_overrides(**overrides)
+    if preset.steps % preset.eval_every:
+        raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
+    tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
+                               for t in g))
+    methods = resolve_methods(args.methods)
+    seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(preset.seeds)
+    work = (args.work or Path("outputs/bench")).resolve()
+    from .datasets import task_data
+
+    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset), work)
+             for s in seeds for t in tasks for m in methods]  # seed-major: a cut-short grid has whole seeds
+    return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks, "methods": [m.name for m in methods], "seeds": seeds}
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    args = parse_args(argv)
+    specs, grid = build_specs(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = ResultsFile(args.out / "results.jsonl")
+    done = results.ok()
+    todo = [s for s in specs if s.key not in done]
+    print(f"[grid] {len(specs)} runs ({len(grid['tasks'])} tasks x {len(grid['methods'])} methods x "
+          f"{len(grid['seeds'])} seeds), {len(specs) - len(todo)} already in {results.path}, {len(todo)} to do")
+    print(f"[grid] preset {grid['preset']['name']}: {grid['preset']['notes']}")
+    if grid["overrides"]:
+        print("[grid] overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()))
+    if args.dry_run:
+        for s in todo:
+            print("  ", s.key)
+        return 0
+    (args.out / "grid.json").write_text(__import__("json").dumps(grid, indent=2, default=str))
+
+    from tqdm import tqdm
+
+    for task in dict.fromkeys(s.task for s in todo):
+        print(f"[grid] expert demos for {task} (collected once, reused by every run)", flush=True)
+        ensure_task_data(todo[0].work, task, todo[0].preset)
+
+    bar = tqdm(total=len(specs), initial=len(specs) - len(todo), unit="run", file=sys.stdout)
+    failed: list[str] = []
+    t0 = time.perf_counter()
+
+    def on_result(record: dict) -> None:
+        results.append(record)
+        bar.update(1)
+        if record["status"] == "ok":
+            bar.write(f"[grid] {record['key']}: top-{todo[0].preset.top_k} success {record['success_top_k']:.2f}, "
+                      f"final {record['success_final']:.2f}, ATV {record['atv']:.4f}, "
+                      f"{record['wall_s'] / 60:.1f} min")
+        else:
+            failed.append(record["key"])
+            bar.write(f"[grid] {record['key']}: FAILED after {record['attempts']} attempts: "
+                      f"{record['error'].splitlines()[0]}")
+
+    try:
+        if args.executor == "ray":
+            from .executors import run_ray
+
+            run_ray(todo, on_result, args.retries, args.ray_address, args.cpus_per_run, args.gpus_per_run)
+        else:
+            from .executors import run_local
+
+            run_local(todo, on_result, args.retries, args.jobs)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\n[grid] interrupted: finished runs are in {results.path}; rerun the same command to resume")
+        return 130
+    bar.close()
+    print(f"[grid] {len(todo)} runs in {(time.perf_counter() - t0) / 60:.1f} min; {len(failed)} failed"
+          + (f": {', '.join(failed)}" if failed else ""))
+
+    from .report import write_report
+
+    write_report(args.out)
+    return 1 if failed else 0
+
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,203 @@
+"""One grid run: `lerobot-train` with LeRobot's periodic evaluation, then the checkpoint metrics.
+
+Everything is a real LeRobot process: `lerobot-train` trains with the method's arguments and, every K steps,
+evaluates N episodes in ``focal_metaworld`` (its own ``--env_eval_freq`` loop); the env writes one JSON line per
+episode (success, length, ATV) to ``eval_episodes.jsonl``; then ``analyze`` measures the final checkpoint.
+A run is a plain function of a picklable ``RunSpec`` so the local executor and Ray tasks call the same code.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .datasets import TaskData
+from .methods import METHODS
+from .metrics import eval_curve, top_k_mean
+from .presets import GridPreset
+from .results import run_key
+
+UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
+
+
+class RunFailed(RuntimeError):
+    """A run that did not produce results; the message says which step and where its log is."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    task: str
+    method: str
+    seed: int
+    preset: GridPreset
+    data: TaskData
+    work: Path
+
+    @property
+    def key(self) -> str:
+        return run_key(self.task, self.method, self.seed)
+
+    @property
+    def run_dir(self) -> Path:
+        return self.work / "runs" / self.preset.name / self.task / self.method / f"seed{self.seed}"
+
+
+def _exe(name: str) -> str:
+    local = Path(sys.executable).with_name(name)
+    return str(local) if local.exists() else (shutil.which(name) or name)
+
+
+def train_command(spec: RunSpec) -> list[str]:
+    p = spec.preset
+    out = spec.run_dir
+    return [
+        _exe("lerobot-train"),
+        *METHODS[spec.method].train_args(p),
+        f"--dataset.repo_id={spec.data.train_repo_id}",
+        f"--dataset.root={spec.data.train_root}",
+        f"--output_dir={out / 'train'}",
+        f"--job_name={spec.task}_{spec.method}_s{spec.seed}",
+        f"--seed={spec.seed}",
+        f"--steps={p.steps}",
+        f"--batch_size={p.batch_size}",
+        "--num_workers=0",
+        f"--save_freq={p.steps}",
+        f"--log_freq={max(p.eval_every // 2, 1)}",
+        "--wandb.enable=false",
+        # LeRobot's own periodic evaluation, in the plugin's env (same seeds at every evaluation of a run).
+        "--env.type=focal_metaworld",
+        f"--env.task={spec.task}",
+        f"--env.obs_type={p.obs_type}",
+        f"--env.env_state={str(p.env_state).lower()}",
+        f"--env.episode_length={p.episode_length}",
+        # lerobot-train renders 4 evaluation episodes to video at every evaluation; the grid needs no videos.
+        "--env.observation_width=64",
+        "--env.observation_height=64",
+        "--env.render_videos=false",
+        f"--env.metrics_path={out / 'eval_episodes.jsonl'}",
+        f"--env_eval_freq={p.eval_every}",
+        f"--eval.n_episodes={p.eval_episodes}",
+        f"--eval.batch_size={p.eval_episodes}",
+        "--eval.use_async_envs=false",
+        *p.extra_train_args,
+    ]
+
+
+def _env(preset: GridPreset) -> dict[str, str]:
+    env = {**os.environ, "WANDB_MODE": "disabled", "HF_HUB_OFFLINE": "1", "LEROBOT_FOCAL_FAST_READER": "1"}
+    if preset.num_threads:
+        env["OMP_NUM_THREADS"] = env["MKL_NUM_THREADS"] = str(preset.num_threads)
+    return env
+
+
+class GridStopped(RuntimeError):
+    """The grid is being interrupted: do not start (or retry) anything."""
+
+
+#: Child processes of runs in flight in this process, so an interrupted driver can stop them (they run in their
+#: own sessions, so a terminal's Ctrl-C reaches only the driver, which then stops them in order).
+_RUNNING: set[subprocess.Popen] = set()
+_STOPPING = threading.Event()
+
+
+def stop_all() -> None:
+    """Stop every run in flight in this process and refuse new ones (the driver's Ctrl-C path)."""
+    _STOPPING.set()
+    for proc in list(_RUNNING):
+        proc.terminate()
+    for proc in list(_RUNNING):
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def _call(cmd: list[str], log: Path, env: dict[str, str], what: str) -> None:
+    if _STOPPING.is_set():
+        raise GridStopped("the grid is stopping")
+    with open(log, "ab") as f:
+        f.write(f"\n$ {' '.join(cmd)}\n".encode())
+        f.flush()
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        _RUNNING.add(proc)
+        try:
+            rc = proc.wait()
+        except BaseException:  # Ctrl-C in a single-job driver lands here: the child is in its own session
+            proc.terminate()
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+            raise
+        finally:
+            _RUNNING.discard(proc)
+    if _STOPPING.is_set():
+        raise GridStopped("the grid is stopping")
+    if rc != 0:
+        tail = log.read_text(errors="replace").splitlines()[-15:]
+        raise RunFailed(f"{what} exited with {rc}; log: {log}\n" + "\n".join(tail))
+
+
+def run_one(spec: RunSpec) -> dict:
+    """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed."""
+    out = spec.run_dir
+    if out.exists():
+        shutil.rmtree(out)  # an interrupted earlier attempt: start it over (lerobot-train needs a new dir)
+    out.mkdir(parents=True)
+    with open(spec.work / "attempts.log", "a") as f:  # every start of every run, kept across retries
+        f.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {spec.key} pid={os.getpid()}\n")
+    env = _env(spec.preset)
+    p = spec.preset
+
+    t0 = time.perf_counter()
+    _call(train_command(spec), out / "train.log", env, "lerobot-train")
+    wall_s = time.perf_counter() - t0
+
+    episodes = [json.loads(line) for line in (out / "eval_episodes.jsonl").read_text().splitlines() if line]
+    curve = eval_curve(episodes, p.eval_episodes, p.eval_every)
+    if len(curve) != p.steps // p.eval_every:
+        raise RunFailed(f"expected {p.steps // p.eval_every} evaluations, found {len(curve)} in {out}")
+    updates = [float(x) for x in UPDATE_RE.findall((out / "train.log").read_text(errors="replace"))]
+
+    checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
+    analysis_path = out / "analysis.json"
+    _call(
+        [sys.executable, "-m", "lerobot_focal.benchmarks.grid.analyze", str(checkpoint), str(spec.data.heldout_root),
+         spec.data.heldout_repo_id, str(analysis_path), "--device", p.device],
+        out / "analyze.log", env, "checkpoint analysis",
+    )
+    analysis = json.loads(analysis_path.read_text())
+    successes = [c["success"] for c in curve]
+    return {
+        "key": spec.key,
+        "status": "ok",
+        "task": spec.task,
+        "method": spec.method,
+        "seed": spec.seed,
+        "preset": p.name,
+        "success_top_k": top_k_mean(successes, p.top_k),
+        "success_final": successes[-1],
+        "atv": curve[-1]["atv"],  # executed actions of the final evaluation
+        "curve": curve,
+        **analysis,
+        "update_s_per_step": (sum(updates) / len(updates)) if updates else None,
+        "wall_s": wall_s,
+        "run_dir": str(out),
+        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }
+
+
+def failure_record(spec: RunSpec, error: BaseException, attempts: int) -> dict:
+    return {
+        "key": spec.key, "status": "failed", "task": spec.task, "method": spec.method, "seed": spec.seed,
+        "preset": spec.preset.name, "attempts": attempts, "error": str(error)[-3000:],
+        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }

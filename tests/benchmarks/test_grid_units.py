@@ -1,0 +1,94 @@
+"""The grid's bookkeeping and metrics on their own: numbers checked by hand, files written and re-read."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from lerobot_focal.benchmarks.grid.methods import METHODS, resolve_methods
+from lerobot_focal.benchmarks.grid.metrics import (
+    compounding_error,
+    eval_curve,
+    top_k_mean,
+    trajectory_smoothness,
+    ts_score,
+)
+from lerobot_focal.benchmarks.grid.presets import PRESETS
+from lerobot_focal.benchmarks.grid.results import ResultsFile
+from lerobot_focal.policy.configuration_focal import ABLATIONS
+
+
+def test_top_k_mean_takes_the_best_evaluations():
+    assert top_k_mean([0.1, 0.9, 0.5, 0.7, 0.3, 0.2, 0.8], 5) == pytest.approx((0.9 + 0.8 + 0.7 + 0.5 + 0.3) / 5)
+    assert top_k_mean([0.4, 0.6], 5) == pytest.approx(0.5)
+
+
+def _ep(seed, success, atv=0.1, length=50):
+    return {"seed": seed, "success": success, "action_total_variation": atv, "length": length}
+
+
+def test_eval_curve_groups_seeded_episodes_and_drops_autoreset_ones():
+    episodes = [_ep(0, True, 0.1), _ep(None, True), _ep(1, False, 0.3),  # evaluation 1 (+ one autoreset episode)
+                _ep(0, True, 0.2), _ep(1, True, 0.4)]  # evaluation 2
+    curve = eval_curve(episodes, episodes_per_eval=2, eval_every=50)
+    assert [c["step"] for c in curve] == [50, 100]
+    assert [c["success"] for c in curve] == [0.5, 1.0]
+    assert curve[0]["atv"] == pytest.approx(0.2) and curve[1]["atv"] == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="not a multiple"):
+        eval_curve(episodes[:4], episodes_per_eval=2, eval_every=50)
+
+
+def test_compounding_error_integrates_position_actions():
+    expert = np.zeros((4, 4))
+    expert[:, 0] = 1.0  # +1 in x each step
+    policy = expert.copy()
+    policy[:, 1] = 0.5  # drifts 0.5 in y per step; the gripper column is ignored
+    policy[:, 3] = 9.0
+    np.testing.assert_allclose(compounding_error(expert, policy), [0.5, 1.0, 1.5, 2.0])
+
+
+def test_ts_score_is_the_gap_in_second_difference_smoothness():
+    smooth = np.linspace(0, 1, 10)[:, None].repeat(2, axis=1)  # zero second difference
+    zigzag = smooth.copy()
+    zigzag[::2] += 0.1
+    assert trajectory_smoothness(smooth) == pytest.approx(0.0, abs=1e-12)
+    assert trajectory_smoothness(zigzag) == pytest.approx(0.2 * np.sqrt(2))
+    assert ts_score([smooth], [zigzag]) == pytest.approx(0.2 * np.sqrt(2))
+    assert ts_score([zigzag], [zigzag]) == 0.0
+
+
+def test_results_file_survives_a_torn_line_and_keeps_the_latest_ok(tmp_path):
+    results = ResultsFile(tmp_path / "results.jsonl")
+    results.append({"key": "a|focal|0", "status": "failed"})
+    results.append({"key": "a|focal|0", "status": "ok", "v": 1})
+    with open(results.path, "a") as f:
+        f.write('{"key": "b|focal|0", "sta')  # the driver was killed mid-write
+    results.append({"key": "b|focal|0", "status": "ok", "v": 2})
+    ok = results.ok()
+    assert ok["a|focal|0"]["v"] == 1 and ok["b|focal|0"]["v"] == 2
+    lines = results.path.read_text().splitlines()
+    assert len(lines) == 4 and json.loads(lines[-1])["v"] == 2
+
+
+def test_every_paper_ablation_is_a_method_with_its_switch():
+    for name in ABLATIONS:
+        if name in ("public_code", "low_freq_only", "high_freq_only"):
+            continue  # not in the paper's benchmark tables
+        assert f"--policy.ablation={name}" in METHODS[name].train_args(PRESETS["cpu"])
+    assert "--policy.consistency_target=online" in METHODS["focal_online"].train_args(PRESETS["cpu"])
+    args = METHODS["diffusion"].train_args(PRESETS["cpu"])
+    assert "--policy.noise_scheduler_type=DDIM" in args and "--policy.num_inference_steps=10" in args
+    # Same U-Net channels for every method.
+    dims = {a for m in METHODS.values() for a in m.train_args(PRESETS["cpu"]) if a.startswith("--policy.down_dims")}
+    assert dims == {"--policy.down_dims=[32,64,128]"}
+
+
+def test_method_and_preset_errors_say_what_to_do():
+    with pytest.raises(ValueError, match="choose from"):
+        resolve_methods("focal,fancy")
+    no_env_state = PRESETS["cpu"].with_overrides(env_state=False)
+    with pytest.raises(ValueError, match="environment_state"):
+        METHODS["diffusion"].train_args(no_env_state)
+    assert [m.name for m in resolve_methods("core")] == ["focal", "wo_las", "wo_fco_las", "diffusion"]
