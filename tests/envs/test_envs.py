@@ -58,6 +58,31 @@ def test_metaworld_obs_types(obs_type):
         env.close()
 
 
+def test_metaworld_env_state_is_metaworlds_own_observation():
+    """env_state=true adds the 39-d observation the scripted experts read (object poses), declared as ENV."""
+    from lerobot.configs import FeatureType
+
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    cfg = FocalMetaworldEnvConfig(task="pick-place", obs_type="state", env_state=True, render_videos=False)
+    assert cfg.features["environment_state"].type is FeatureType.ENV
+    assert cfg.features_map["environment_state"] == "observation.environment_state"
+    env = cfg.make_single_env()
+    try:
+        a, _ = env.reset(seed=1)
+        assert a["environment_state"].shape == (39,) and a["environment_state"].dtype == np.float32
+        np.testing.assert_allclose(a["environment_state"], env.last_raw_obs, rtol=1e-6)
+        np.testing.assert_allclose(a["environment_state"][:3], a["agent_pos"][:3], atol=1e-5)  # hand position
+        b, _ = env.reset(seed=2)
+        assert not np.allclose(a["environment_state"][4:7], b["environment_state"][4:7])  # the object moved
+        frame = env.render()
+        assert frame.shape == (16, 16, 3) and not frame.any()  # render_videos=false: blank video frames
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="render_videos"):
+        FocalMetaworldEnvConfig(task="reach", obs_type="pixels", render_videos=False)
+
+
 def test_metaworld_seed_controls_object_positions():
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 
