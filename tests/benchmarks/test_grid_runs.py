@@ -69,3 +69,45 @@ def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     starts = (work / "attempts.log").read_text().splitlines()
     assert sum("reach|focal|7" in line for line in starts) == 2  # Ray retried the failed run once
     assert json.loads(results.path.read_text().splitlines()[0])  # whole lines only
+
+
+def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
+    """Ctrl-C (SIGINT) on the driver: exit 130, the run in flight is stopped (no orphaned lerobot-train), no
+    failure is recorded for it, nothing is retried; the same command then finishes the grid."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *TINY_ARGS, "--methods", "wo_las",
+           "--out", str(out), "--work", str(work)]
+    attempts = work / "attempts.log"
+    before = attempts.read_text().count("reach|wo_las|0") if attempts.exists() else 0
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        if attempts.exists() and attempts.read_text().count("reach|wo_las|0") > before:
+            break
+        time.sleep(0.5)
+    else:
+        proc.kill()
+        pytest.fail("the run never started")
+    run_dir = work / "runs" / "cpu" / "reach" / "wo_las" / "seed0"
+    while time.time() < deadline and not list(run_dir.glob("train.log")):
+        time.sleep(0.2)
+    time.sleep(3)  # lerobot-train is up
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "interrupted" in output
+    leftover = subprocess.run(["pgrep", "-f", str(run_dir)], capture_output=True, text=True).stdout.split()
+    assert [pid for pid in leftover if int(pid) != os.getpid()] == []
+    assert ResultsFile(out / "results.jsonl").records() == []  # neither ok nor failed
+    assert attempts.read_text().count("reach|wo_las|0") == before + 1  # not retried
+
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
+    (record,) = ResultsFile(out / "results.jsonl").records()
+    assert record["status"] == "ok" and record["key"] == "reach|wo_las|0"
