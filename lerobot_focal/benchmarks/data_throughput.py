@@ -29,6 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from lerobot_focal.console import console_script
+
 LOG_RE = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 CACHED_RE = re.compile(r"fast reader: (\d+) columns cached in memory \(([0-9.]+) MB\)")
 REPO = Path(__file__).resolve().parents[2]
@@ -45,7 +47,7 @@ def _plugin_wires_env() -> bool:
 def _command(mode: str, wired: bool) -> tuple[list[str], dict[str, str]]:
     env = {k: v for k, v in os.environ.items() if k != "LEROBOT_FOCAL_FAST_READER"}
     env.update(HF_HUB_OFFLINE="1", HF_DATASETS_OFFLINE="1", WANDB_MODE="disabled")
-    lerobot_train = str(Path(sys.executable).with_name("lerobot-train"))
+    lerobot_train = console_script("lerobot-train")
     if mode == "stock":
         return [lerobot_train], env
     env["LEROBOT_FOCAL_FAST_READER"] = "1"

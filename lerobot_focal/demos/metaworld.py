@@ -28,15 +28,11 @@ import sys
 import time
 from pathlib import Path
 
+from lerobot_focal.console import console_script
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 CPU_PRESET = REPO_ROOT / "configs" / "focal_cpu.json"
 LOSS_RE = re.compile(r"step:(\S+) .*?\bloss:([0-9.eE+-]+)")
-
-
-def _exe(name: str) -> str:
-    """A console script of this venv (next to the interpreter), else whatever is on PATH."""
-    local = Path(sys.executable).with_name(name)
-    return str(local) if local.exists() else (shutil.which(name) or name)
 
 
 def _run(cmd: list[str], log_path: Path, env_extra: dict[str, str] | None = None) -> str:
@@ -73,7 +69,7 @@ def train(task: str, root: Path, out_dir: Path, steps: int, batch_size: int, see
     if out_dir.exists():
         shutil.rmtree(out_dir)  # lerobot-train refuses an existing output_dir unless resuming
     cmd = [
-        _exe("lerobot-train"),
+        console_script("lerobot-train"),
         f"--config_path={CPU_PRESET}",
         f"--dataset.repo_id=local/metaworld_{task}",
         f"--dataset.root={root}",
@@ -96,7 +92,7 @@ def evaluate(task: str, checkpoint: Path, out_dir: Path, n_episodes: int, batch_
     out_dir.mkdir(parents=True)
     metrics = out_dir / "episodes.jsonl"
     cmd = [
-        _exe("lerobot-eval"),
+        console_script("lerobot-eval"),
         f"--policy.path={checkpoint}",
         "--env.type=focal_metaworld",
         f"--env.task={task}",

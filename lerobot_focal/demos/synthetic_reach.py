@@ -15,13 +15,13 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from lerobot_focal.console import console_script
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -30,7 +30,7 @@ CPU_PRESET = REPO_ROOT / "configs" / "focal_cpu.json"
 
 def train(dataset_root: Path, out_dir: Path, steps: int, batch_size: int) -> Path:
     """Run `lerobot-train` in a subprocess and return the last checkpoint's `pretrained_model` folder."""
-    exe = Path(sys.executable).with_name("lerobot-train")
+    exe = console_script("lerobot-train")
     cmd = [
         str(exe) if exe.exists() else "lerobot-train",
         f"--config_path={CPU_PRESET}",

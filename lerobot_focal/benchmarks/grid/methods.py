@@ -36,8 +36,9 @@ class Method:
 
 def _focal_inputs(preset: GridPreset) -> list[str]:
     args = []
-    if preset.name == "cpu":  # the CPU preset's encoders (configs/focal_cpu.json)
-        args += ["--policy.pointcloud_feature_dim=64", "--policy.state_feature_dim=64"]
+    if preset.focal_encoder_dim is not None:
+        dim = preset.focal_encoder_dim
+        args += [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
     # With a point cloud focal reads it and the 9-d state (DP3's inputs); without one, the object poses.
     use_env_state = preset.env_state and preset.obs_type != "pointcloud"
     return args + [f"--policy.use_env_state={str(use_env_state).lower()}"]

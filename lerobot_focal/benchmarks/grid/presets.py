@@ -34,6 +34,8 @@ class GridPreset:
     device: str = "cpu"
     num_threads: int | None = 1  # torch threads per run (OMP_NUM_THREADS); None = library default
     notes: str = ""
+    # focal's point-cloud / state encoder widths; None = FocalConfig's defaults (the paper's)
+    focal_encoder_dim: int | None = None
     extra_train_args: tuple[str, ...] = field(default_factory=tuple)
 
     def with_overrides(self, **kwargs) -> GridPreset:
@@ -61,6 +63,7 @@ PRESETS: dict[str, GridPreset] = {
         seeds=(0, 1),
         device="cpu",
         num_threads=1,
+        focal_encoder_dim=64,  # as configs/focal_cpu.json
         notes=(
             "CPU preset (scaled down from the paper): 400 steps at batch 64 instead of ~47k at 128; 10 evaluation "
             "episodes every 80 steps instead of 20 (5 evaluations, so top-5 is their mean); U-Net 32/64/128 instead of 512/1024/2048; low-dimensional "

@@ -19,6 +19,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from lerobot_focal.console import console_script
+
 from .datasets import TaskData
 from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
@@ -50,16 +52,11 @@ class RunSpec:
         return self.work / "runs" / self.preset.name / self.task / self.method / f"seed{self.seed}"
 
 
-def _exe(name: str) -> str:
-    local = Path(sys.executable).with_name(name)
-    return str(local) if local.exists() else (shutil.which(name) or name)
-
-
 def train_command(spec: RunSpec) -> list[str]:
     p = spec.preset
     out = spec.run_dir
     return [
-        _exe("lerobot-train"),
+        console_script("lerobot-train"),
         *METHODS[spec.method].train_args(p),
         f"--dataset.repo_id={spec.data.train_repo_id}",
         f"--dataset.root={spec.data.train_root}",
