@@ -14,9 +14,9 @@ action window at t removes that off-by-one.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
+from draccus.utils import DecodingError
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
@@ -27,6 +27,24 @@ from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
 OBS_POINTCLOUD = "observation.pointcloud"
+
+# The method switches an ablation may set, with the paper's values. In the dataclass they default to None,
+# meaning "not given": `__post_init__` fills them from the ablation, else from here. So a switch given on the
+# command line is known to be given even when it equals the paper's value, and contradicting an ablation is an
+# error instead of being silently overridden.
+PAPER_METHOD: dict[str, object] = {
+    "objective": "fco",
+    "anchor_sampler": "logit_normal",
+    "anchor_mu": 4.0,
+    "anchor_sigma": 1.6,
+    "fixed_r": 1.0,
+    "time_loss_window": "proximal",
+    "time_weight": 1.0,
+    "regularizer": "freq",
+    "freq_loss_window": "macro",
+    "freq_band": "all",
+    "consistency_target": "ema",
+}
 
 # The paper's ablations, each a set of field values (Tables 4, 9 and the appendix). Applying one is
 # equivalent to passing those fields on the command line.
@@ -45,6 +63,22 @@ ABLATIONS: dict[str, dict[str, object]] = {
     # Not a paper ablation: what the authors' public code does (mixture anchor, online stop-grad target).
     "public_code": {"anchor_sampler": "mixture", "consistency_target": "online"},
 }
+
+
+class FocalConfigError(DecodingError):
+    """A `FocalConfig` setting that cannot work; the message names it and the fix.
+
+    Deliberately not a ValueError: draccus, LeRobot's command-line parser, replaces a ValueError or TypeError
+    raised while it builds a config with "Couldn't instantiate class FocalConfig using the given arguments",
+    so a `lerobot-train` user would never learn what was wrong. A draccus DecodingError with an empty key
+    path is printed verbatim, as LeRobot prints its own parsing errors (`error: ...`, exit status 1).
+    """
+
+    def __init__(self, message: str):
+        super().__init__((), message)
+
+
+assert set(PAPER_METHOD) >= {k for fields in ABLATIONS.values() for k in fields}
 
 
 @PreTrainedConfig.register_subclass("focal")
@@ -118,29 +152,31 @@ class FocalConfig(PreTrainedConfig):
 
     # --- method: sampling, objective, target ---------------------------------------------------------------
     ablation: str | None = None  # one of ABLATIONS; sets the fields below
-    objective: str = "fco"  # fco | flowpolicy
-    anchor_sampler: str = "logit_normal"  # logit_normal (LAS) | adjacent | fixed | mixture
+    # The switches below that an ablation may set default to None ("not given") and are resolved in
+    # __post_init__ to the ablation's value or the paper's (PAPER_METHOD); a saved config holds the resolved values.
+    objective: str | None = None  # fco | flowpolicy
+    anchor_sampler: str | None = None  # logit_normal (LAS) | adjacent | fixed | mixture
     time_eps: float = 0.01
-    anchor_mu: float = 4.0
-    anchor_sigma: float = 1.6
+    anchor_mu: float | None = None
+    anchor_sigma: float | None = None
     adjacent_delta: float = 0.01
-    fixed_r: float = 1.0
+    fixed_r: float | None = None
     mixture_mu_a: float = 0.6
     mixture_sigma_a: float = 1.6
     mixture_ratio: float = 0.15
-    time_loss_window: str = "proximal"  # proximal | macro
-    time_weight: float = 1.0
-    regularizer: str = "freq"  # freq | time_mse | none
-    freq_loss_window: str = "macro"  # macro | proximal
+    time_loss_window: str | None = None  # proximal | macro
+    time_weight: float | None = None
+    regularizer: str | None = None  # freq | time_mse | none
+    freq_loss_window: str | None = None  # macro | proximal
     freq_weight: float = 1e-4  # λ
-    freq_band: str = "all"  # all | low | high
+    freq_band: str | None = None  # all | low | high
     freq_cutoff: int | None = None
     macro_mse_weight: float = 1.0
     cfm_num_segments: int = 2
     cfm_boundary: float = 1.0
     cfm_alpha: float = 1e-5
     # θ⁻ of the consistency target: "ema" (the paper) or "online" weights under no_grad (the authors' code).
-    consistency_target: str = "ema"
+    consistency_target: str | None = None
     num_inference_steps: int = 1  # NFE per chunk; > 1 integrates with Euler steps
 
     # --- EMA (DP3's schedule: decay = 1 − (1 + step)^−power, clipped) --------------------------------------
@@ -166,31 +202,39 @@ class FocalConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        self._apply_ablation()
+        try:
+            self._resolve_method_switches()
+            self._validate()
+        except FocalConfigError:
+            raise
+        except ValueError as e:  # from the specs' own checks: same reason to reach the CLI user
+            raise FocalConfigError(str(e)) from e
+
+    def _validate(self) -> None:
         if self.drop_n_last_frames is None:
             self.drop_n_last_frames = self.chunk_size - 1
         if self.n_obs_steps < 1 or self.chunk_size < 1 or self.n_chunks < 1:
-            raise ValueError(
+            raise FocalConfigError(
                 f"n_obs_steps, chunk_size and n_chunks must be ≥ 1 (got {self.n_obs_steps}, "
                 f"{self.chunk_size}, {self.n_chunks})."
             )
         factor = unet_downsampling_factor(self.down_dims)
         if self.horizon % factor != 0:
             ok = [h for h in range(factor, 4 * factor + 1, factor)]
-            raise ValueError(
+            raise FocalConfigError(
                 f"The U-Net with down_dims={tuple(self.down_dims)} halves the horizon {len(self.down_dims) - 1} "
                 f"times, so the macro horizon L = chunk_size·n_chunks must be a multiple of {factor}; got "
                 f"L = {self.chunk_size}·{self.n_chunks} = {self.horizon}. Fix: choose chunk_size/n_chunks with L "
                 f"in {ok}, or use fewer down_dims."
             )
         if self.consistency_target not in ("ema", "online"):
-            raise ValueError(f"consistency_target must be 'ema' or 'online', got {self.consistency_target!r}.")
+            raise FocalConfigError(f"consistency_target must be 'ema' or 'online', got {self.consistency_target!r}.")
         if self.consistency_target == "ema" and not self.use_ema:
-            raise ValueError("consistency_target='ema' needs use_ema=true (or set consistency_target='online').")
+            raise FocalConfigError("consistency_target='ema' needs use_ema=true (or set consistency_target='online').")
         if self.num_inference_steps < 1:
-            raise ValueError(f"num_inference_steps must be ≥ 1, got {self.num_inference_steps}.")
+            raise FocalConfigError(f"num_inference_steps must be ≥ 1, got {self.num_inference_steps}.")
         if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0:
-            raise ValueError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
+            raise FocalConfigError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
         if self.pointcloud_from_depth is not None:
             self._validate_pointcloud_from_depth()
         # Building the specs validates every method switch with a message naming the allowed values.
@@ -252,20 +296,33 @@ class FocalConfig(PreTrainedConfig):
             )
         self.input_features[self.pointcloud_key] = self.depth_pointcloud_feature()
 
-    def _apply_ablation(self) -> None:
-        if self.ablation is None:
-            return
-        if self.ablation not in ABLATIONS:
-            raise ValueError(f"Unknown ablation {self.ablation!r}. Choose one of {sorted(ABLATIONS)} or leave it unset.")
-        defaults = {f.name: f.default for f in dataclasses.fields(FocalConfig)}
-        for name, value in ABLATIONS[self.ablation].items():
-            current = getattr(self, name)
-            if current != defaults[name] and current != value:
-                raise ValueError(
-                    f"ablation={self.ablation!r} sets {name}={value!r}, but {name}={current!r} was also given. "
-                    "Drop one of the two."
+    def _resolve_method_switches(self) -> None:
+        """Fill each method switch left unset (None) from the ablation, else from the paper's value.
+
+        A switch that was given and contradicts the ablation is an error, even when it equals the paper's value
+        (`ablation=wo_las anchor_sampler=logit_normal` asks for two different samplers). A given value equal to
+        the ablation's is accepted: that is what a saved config.json holds, so checkpoints load back.
+        """
+        ablation: dict[str, object] = {}
+        if self.ablation is not None:
+            if self.ablation not in ABLATIONS:
+                raise FocalConfigError(
+                    f"Unknown ablation {self.ablation!r}. Choose one of {sorted(ABLATIONS)} or leave it unset."
                 )
-            setattr(self, name, value)
+            ablation = ABLATIONS[self.ablation]
+        conflicts = [
+            f"{name}={getattr(self, name)!r} (the ablation sets {name}={value!r})"
+            for name, value in ablation.items()
+            if getattr(self, name) is not None and getattr(self, name) != value
+        ]
+        if conflicts:
+            raise FocalConfigError(
+                f"ablation={self.ablation!r} conflicts with the switch(es) also given: {'; '.join(conflicts)}. "
+                "An ablation sets these itself: drop the switch, or drop the ablation and give every switch."
+            )
+        for name, paper_value in PAPER_METHOD.items():
+            if getattr(self, name) is None:
+                setattr(self, name, ablation.get(name, paper_value))
 
     # --- derived -------------------------------------------------------------------------------------------
     @property

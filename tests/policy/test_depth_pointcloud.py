@@ -18,6 +18,7 @@ from lerobot.processor import PolicyProcessorPipeline, ProcessorStepRegistry
 from lerobot.processor.converters import batch_to_transition, transition_to_batch
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
+from lerobot_focal.policy.configuration_focal import FocalConfigError
 from lerobot_focal.policy.processor_focal import DEPTH_TO_POINTCLOUD_STEP, DepthToPointCloudProcessorStep
 
 from .helpers import SMALL_UNET
@@ -223,7 +224,7 @@ def test_missing_camera_info_and_crop_say_what_to_do(tmp_path):
     cfg = _config(tmp_path, pointcloud_camera="wrist")
     with pytest.raises(KeyError, match=r"no camera 'wrist' \(it has \['front'\]\)"):
         make_focal_pre_post_processors(cfg, dataset_stats=_stats())
-    with pytest.raises(ValueError, match="pointcloud_crop_min"):
+    with pytest.raises(FocalConfigError, match="pointcloud_crop_min"):
         _config(tmp_path, pointcloud_crop_min=None)
 
 

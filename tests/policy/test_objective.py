@@ -7,7 +7,7 @@ import pytest
 import scipy.fft
 import torch
 
-from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig
+from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig, FocalConfigError
 from lerobot_focal.policy.objective import (
     ObjectiveSpec,
     composite_loss,
@@ -109,9 +109,9 @@ def test_each_ablation_changes_exactly_the_fields_it_names(name):
 
 
 def test_ablation_conflicting_with_an_explicit_field_is_an_error():
-    with pytest.raises(ValueError, match="anchor_sampler"):
+    with pytest.raises(FocalConfigError, match="anchor_sampler"):
         FocalConfig(ablation="wo_las", anchor_sampler="mixture")
-    with pytest.raises(ValueError, match="Unknown ablation 'nope'"):
+    with pytest.raises(FocalConfigError, match="Unknown ablation 'nope'"):
         FocalConfig(ablation="nope")
 
 

@@ -5,6 +5,7 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy
+from lerobot_focal.policy.configuration_focal import FocalConfigError
 from lerobot_focal.policy.modeling_focal import ema_decay
 
 from .helpers import small_config, small_policy
@@ -160,7 +161,7 @@ def test_bad_pointcloud_shape():
 
 
 def test_horizon_the_unet_cannot_take():
-    with pytest.raises(ValueError, match=r"multiple of 4.*L = 5·2 = 10"):
+    with pytest.raises(FocalConfigError, match=r"multiple of 4.*L = 5·2 = 10"):
         FocalConfig(chunk_size=5, n_chunks=2)
 
 
@@ -193,9 +194,9 @@ def test_nan_in_a_batch_is_refused_with_its_key():
 
 
 def test_bad_method_switches():
-    with pytest.raises(ValueError, match="consistency_target"):
+    with pytest.raises(FocalConfigError, match="consistency_target"):
         FocalConfig(consistency_target="teacher")
-    with pytest.raises(ValueError, match="use_ema"):
+    with pytest.raises(FocalConfigError, match="use_ema"):
         FocalConfig(use_ema=False)
-    with pytest.raises(ValueError, match="freq_band"):
+    with pytest.raises(FocalConfigError, match="freq_band"):
         FocalConfig(freq_band="mid")

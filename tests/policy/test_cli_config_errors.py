@@ -1,0 +1,78 @@
+"""A bad `--policy.*` value reaches the `lerobot-train` user as FocalConfig's own message, not draccus's
+"Couldn't instantiate class FocalConfig", with and without `--config_path`; a switch that contradicts an
+ablation is refused instead of being silently overridden; an ablation alone trains and its saved config loads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from lerobot.configs.policies import PreTrainedConfig
+
+from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+
+REPO = Path(__file__).resolve().parents[2]
+BIN = Path(sys.executable).parent
+
+
+def lerobot_train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    return subprocess.run(
+        [str(BIN / "lerobot-train"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("cfg") / "dataset"
+    write_synthetic_dataset(root, SyntheticSpec(num_episodes=2, episode_length=16, num_points=16))
+    return root
+
+
+BAD = {
+    "horizon": (["--policy.chunk_size=5", "--policy.n_chunks=2"], r"must be a multiple of 4; got L = 5·2 = 10. Fix:"),
+    "ablation": (["--policy.ablation=nope"], "Unknown ablation 'nope'. Choose one of ['anchor_0.4_0.5'"),
+    "sampler": (["--policy.anchor_sampler=nope"], "Unknown anchor sampler 'nope'. Choose one of"),
+    "conflict": (
+        ["--policy.ablation=wo_las", "--policy.anchor_sampler=logit_normal"],
+        "ablation='wo_las' conflicts with the switch(es) also given: anchor_sampler='logit_normal'",
+    ),
+}
+CASES = [(name, False) for name in BAD] + [("horizon", True), ("conflict", True)]
+
+
+@pytest.mark.parametrize(("case", "with_preset"), CASES, ids=[f"{c}{'-preset' if p else ''}" for c, p in CASES])
+def test_bad_policy_switch_reaches_the_user(case, with_preset, dataset, tmp_path):
+    args, message = BAD[case]
+    start = [f"--config_path={REPO / 'configs' / 'focal_cpu.json'}"] if with_preset else ["--policy.type=focal"]
+    proc = lerobot_train(
+        *start, *args, "--dataset.repo_id=local/focal_synthetic", f"--dataset.root={dataset}",
+        "--policy.push_to_hub=false", f"--output_dir={tmp_path / 'run'}", "--steps=1", cwd=tmp_path,
+    )
+    assert proc.returncode != 0, "lerobot-train accepted a bad switch"
+    assert message in proc.stderr, proc.stderr[-3000:]
+    assert "Couldn't instantiate class FocalConfig" not in proc.stderr
+    assert not (tmp_path / "run").exists(), "training started despite the bad switch"
+
+
+def test_ablation_trains_and_its_saved_config_loads_back(dataset, tmp_path):
+    """The paper preset lists no method switch, so an ablation on top of it is no conflict; the checkpoint's
+    config.json holds the resolved switches next to the ablation and must load again unchanged."""
+    out = tmp_path / "run"
+    proc = lerobot_train(
+        f"--config_path={REPO / 'configs' / 'focal_paper.json'}", "--policy.ablation=wo_las",
+        "--policy.down_dims=[16,32]", "--policy.device=cpu", "--batch_size=2", "--num_workers=0", "--steps=1",
+        "--policy.scheduler_warmup_steps=0",
+        "--dataset.repo_id=local/focal_synthetic", f"--dataset.root={dataset}", f"--output_dir={out}", cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    model_dir = out / "checkpoints" / "last" / "pretrained_model"
+    saved = json.loads((model_dir / "config.json").read_text())
+    assert (saved["ablation"], saved["anchor_sampler"], saved["objective"]) == ("wo_las", "adjacent", "fco")
+    loaded = PreTrainedConfig.from_pretrained(model_dir)
+    assert (loaded.ablation, loaded.anchor_sampler, loaded.anchor_mu) == ("wo_las", "adjacent", 4.0)
