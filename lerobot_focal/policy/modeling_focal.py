@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 from collections import deque
+from pathlib import Path
 
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
@@ -25,6 +26,7 @@ from torch import Tensor, nn
 
 from lerobot_focal.policy.configuration_focal import FocalConfig
 from lerobot_focal.policy.encoders import ObservationEncoder
+from lerobot_focal.policy.input_checks import check_dataset_stats
 from lerobot_focal.policy.network import VelocityUnet
 from lerobot_focal.policy.objective import consistency_loss
 from lerobot_focal.policy.time_samplers import sample_times
@@ -71,6 +73,12 @@ class FocalPolicy(PreTrainedPolicy):
         # kwargs: make_policy passes dataset_stats= and dataset_meta=; normalisation lives in the processors.
         super().__init__(config)
         config.validate_features()
+        meta = kwargs.get("dataset_meta")
+        check_dataset_stats(
+            kwargs.get("dataset_stats"), [*config.used_observation_keys, ACTION], getattr(meta, "root", None)
+        )
+        # Where the weights came from, for error messages; set by _load_as_safetensor.
+        self.checkpoint_file: str | None = None
         self.config = config
         self.model = FocalModel(config)
         self.ema_model: FocalModel | None = None
@@ -86,6 +94,28 @@ class FocalPolicy(PreTrainedPolicy):
         self.reset()
 
     # --- LeRobot interface ---------------------------------------------------------------------------------
+    @classmethod
+    def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
+        """LeRobot's loader, with a message that names the file when it is missing or corrupt (safetensors
+        itself only reports e.g. "Error while deserializing header: ...", without the path)."""
+        try:
+            loaded = super()._load_as_safetensor(model, model_file, map_location, strict)
+        except FileNotFoundError as e:
+            raise FileNotFoundError(
+                f"Checkpoint weights {model_file} do not exist. Point --policy.path at a pretrained_model folder "
+                "of a finished save (it holds config.json and model.safetensors)."
+            ) from e
+        except Exception as e:  # noqa: BLE001 - safetensors raises its own SafetensorError / OSError variants
+            size = Path(model_file).stat().st_size if Path(model_file).is_file() else None
+            raise RuntimeError(
+                f"Checkpoint weights {model_file} ({size} bytes) are corrupt or incomplete and cannot be read "
+                f"({type(e).__name__}: {e}). The file was truncated or damaged, e.g. by an interrupted copy, "
+                "download or save. Fix: download the checkpoint again, take another checkpoint of the run "
+                "(checkpoints/<step>/pretrained_model), or re-train."
+            ) from e
+        loaded.checkpoint_file = str(model_file)
+        return loaded
+
     def get_optim_params(self) -> dict:
         return self.model.parameters()
 
@@ -201,7 +231,26 @@ class FocalPolicy(PreTrainedPolicy):
         for i in range(self.config.num_inference_steps):
             t = times[i].expand(b)
             x = x + (times[i + 1] - times[i]) * net.velocity(x, t, cond)
+        if self.config.check_finite and not bool(torch.isfinite(x).all()):
+            raise FloatingPointError(self._nonfinite_output_message(net, x))
         return x
+
+    def _nonfinite_output_message(self, net: nn.Module, x: Tensor) -> str:
+        """Why the policy produced NaN/inf actions from finite observations (the inputs are checked before)."""
+        bad_weights = [name for name, p in net.named_parameters() if not bool(torch.isfinite(p).all())]
+        source = self.checkpoint_file or getattr(self.config, "pretrained_path", None) or "weights not loaded from a file"
+        which = "EMA" if net is self.ema_model else "online"
+        if bad_weights:
+            shown = ", ".join(bad_weights[:3]) + (f" and {len(bad_weights) - 3} more" if len(bad_weights) > 3 else "")
+            cause = f"{len(bad_weights)} weight tensors of the {which} network are NaN/inf ({shown})"
+        else:
+            cause = f"the {which} network's weights are finite, so its activations overflowed"
+        return (
+            f"FocalPolicy produced {int((~torch.isfinite(x)).sum())} NaN/inf action value(s) out of {x.numel()} "
+            f"from finite observations: {cause}. Checkpoint: {source}. Such a checkpoint cannot act; stopping "
+            "instead of sending NaN commands. Fix: use an earlier checkpoint of the run, or re-train (training "
+            "diverged: lower the learning rate, check the data and its statistics)."
+        )
 
     # --- input checking ------------------------------------------------------------------------------------
     def _observations(self, batch: dict[str, Tensor], *, training: bool, stacked: bool = True) -> dict[str, Tensor]:

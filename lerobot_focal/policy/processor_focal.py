@@ -42,8 +42,10 @@ from lerobot.processor import (
     ProcessorStepRegistry,
 )
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
+from lerobot.utils.constants import ACTION
 
 from lerobot_focal.policy.configuration_focal import OBS_POINTCLOUD, FocalConfig
+from lerobot_focal.policy.input_checks import FocalInputShapeStep, check_dataset_stats
 
 logger = logging.getLogger(__name__)
 
@@ -327,14 +329,18 @@ def make_focal_pre_post_processors(
     if stats is not None and key in stats and key in config.input_features:
         channels = config.input_features[key].shape[-1]
         stats[key] = per_channel_pointcloud_stats(stats[key], channels)
+    meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
+    check_dataset_stats(stats, [*config.used_observation_keys, ACTION], getattr(meta, "root", None))
     s = make_default_policy_processor_steps(config, stats)
     used = {k: config.input_features[k] for k in config.used_observation_keys}
+    # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
+    shape_check = FocalInputShapeStep(shapes={k: list(ft.shape) for k, ft in used.items()})
     normalize = NormalizerProcessorStep(
         features={**used, **config.output_features}, norm_map=config.normalization_mapping, stats=stats
     )
     # The cloud is made after batching (so an unbatched frame works too) and before the device move (numpy).
     extra = [depth_step] if depth_step is not None else []
     return make_policy_processor_pipelines(
-        input_steps=[s.rename_observations, s.add_batch_dim, *extra, s.to_device, normalize],
+        input_steps=[s.rename_observations, s.add_batch_dim, *extra, s.to_device, shape_check, normalize],
         output_steps=[s.unnormalize, s.to_cpu],
     )
