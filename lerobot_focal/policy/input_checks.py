@@ -65,8 +65,15 @@ def find_nonfinite_frames(root: str | Path, key: str, limit: int = _MAX_REPORTED
     return hits
 
 
-def check_dataset_stats(stats: dict[str, dict[str, Any]] | None, keys: list[str], root: str | Path | None) -> None:
-    """Raise :class:`DatasetStatsError` when a statistic of one of `keys` is NaN/inf (see the module docstring)."""
+def check_dataset_stats(
+    stats: dict[str, dict[str, Any]] | None, keys: list[str], meta: Any = None
+) -> None:
+    """Raise :class:`DatasetStatsError` when a statistic of one of `keys` is NaN/inf (see the module docstring).
+
+    `meta` (a LeRobotDatasetMetadata, optional) locates the dataset, to name the episodes and frames at fault.
+    """
+    root = getattr(meta, "root", None)
+    repo_id = getattr(meta, "repo_id", None) or "<repo_id>"
     if not stats:
         return
     problems = []
@@ -89,7 +96,7 @@ def check_dataset_stats(stats: dict[str, dict[str, Any]] | None, keys: list[str]
             episodes = sorted({e for e, *_ in hits})
             text += (
                 f". In the dataset: {shown}{' …' if len(hits) == _MAX_REPORTED else ''}. To drop those episodes: "
-                f"lerobot-edit-dataset --repo_id <repo_id> --root {root} --operation.type delete_episodes "
+                f"lerobot-edit-dataset --repo_id {repo_id} --root {root} --operation.type delete_episodes "
                 f"--operation.episode_indices \"{episodes}\""
             )
         problems.append(text)

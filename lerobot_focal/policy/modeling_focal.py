@@ -73,10 +73,7 @@ class FocalPolicy(PreTrainedPolicy):
         # kwargs: make_policy passes dataset_stats= and dataset_meta=; normalisation lives in the processors.
         super().__init__(config)
         config.validate_features()
-        meta = kwargs.get("dataset_meta")
-        check_dataset_stats(
-            kwargs.get("dataset_stats"), [*config.used_observation_keys, ACTION], getattr(meta, "root", None)
-        )
+        check_dataset_stats(kwargs.get("dataset_stats"), [*config.used_observation_keys, ACTION], kwargs.get("dataset_meta"))
         # Where the weights came from, for error messages; set by _load_as_safetensor.
         self.checkpoint_file: str | None = None
         self.config = config

@@ -330,7 +330,7 @@ def make_focal_pre_post_processors(
         channels = config.input_features[key].shape[-1]
         stats[key] = per_channel_pointcloud_stats(stats[key], channels)
     meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
-    check_dataset_stats(stats, [*config.used_observation_keys, ACTION], getattr(meta, "root", None))
+    check_dataset_stats(stats, [*config.used_observation_keys, ACTION], meta)
     s = make_default_policy_processor_steps(config, stats)
     used = {k: config.input_features[k] for k in config.used_observation_keys}
     # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
