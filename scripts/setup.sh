@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Set up lerobot_focal on a fresh machine: find Python ≥ 3.12, create .venv, install the package with its
-# simulation, robot and development extras. Idempotent: a second run only re-checks the install.
+# Set up lerobot_focal on a fresh machine: install the system libraries it needs (scripts/system_libs.sh),
+# find Python ≥ 3.12, create .venv, install the package with its simulation, robot and development extras.
+# Idempotent: a second run only re-checks the install.
 #   PYTHON=/path/to/python3.12 ./scripts/setup.sh   # to choose the interpreter
 #   VENV=/path/to/venv ./scripts/setup.sh            # to choose where the venv goes (default: ./.venv)
 set -euo pipefail
@@ -28,6 +29,9 @@ find_python() {
     done
     return 1
 }
+
+# FFmpeg (torchcodec) and OSMesa (MuJoCo offscreen rendering): apt-get installs them, or this stops naming them.
+./scripts/system_libs.sh
 
 if [ ! -x "$VENV/bin/python" ] || ! is_py312 "$VENV/bin/python"; then
     if ! PY="$(find_python)"; then

@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# System libraries that pip cannot install but the project needs at run time:
+#   FFmpeg's shared libraries  - torchcodec, LeRobot's video decoder. Without them every LeRobot command
+#                                prints ~100 lines of libtorchcodec traceback and falls back to pyav.
+#   OSMesa (libOSMesa.so)      - MuJoCo's offscreen OpenGL without a GPU (MUJOCO_GL=osmesa), used by the
+#                                test that checks the ray-cast depth camera against a real OpenGL render.
+# Installs what is missing with apt-get when it can (root, or password-less sudo); otherwise fails and names
+# the packages. Called by scripts/setup.sh; usable on its own.
+#   scripts/system_libs.sh           # install what is missing
+#   scripts/system_libs.sh --check   # only report; exit 1 if something is missing
+# LEROBOT_FOCAL_SKIP_SYSTEM_LIBS=1 turns a failure into a warning (e.g. no root on a shared machine): video
+# decoding then falls back to pyav and the OpenGL comparison test fails until the libraries are there.
+set -euo pipefail
+
+has_lib() { ldconfig -p 2>/dev/null | grep -qE "$1"; }
+
+# torchcodec supports FFmpeg 4 to 7 (libavutil 56 to 59); the Debian/Ubuntu package "ffmpeg" brings them.
+ffmpeg_ok() { has_lib 'libavutil\.so\.(56|57|58|59) ' && has_lib 'libavformat\.so\.' && has_lib 'libavdevice\.so\.'; }
+osmesa_ok() { has_lib 'libOSMesa\.so'; }
+
+missing_packages() {
+    local pkgs=()
+    ffmpeg_ok || pkgs+=(ffmpeg)
+    osmesa_ok || pkgs+=(libosmesa6)
+    echo "${pkgs[@]:-}"
+}
+
+missing="$(missing_packages)"
+if [ -z "$missing" ]; then
+    echo "[setup] system libraries ok: FFmpeg (torchcodec), OSMesa (MuJoCo offscreen rendering)"
+    exit 0
+fi
+if [ "${1:-}" = "--check" ]; then
+    echo "missing system packages: $missing (install: apt-get install $missing, or run scripts/setup.sh)" >&2
+    exit 1
+fi
+
+# apt's "debconf: delaying package configuration" note is noise; real errors still reach stderr.
+quiet_debconf() { grep -v '^debconf: ' >&2 || true; }
+
+as_root=()
+if [ "$(id -u)" -ne 0 ]; then
+    if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then as_root=(sudo -n); else as_root=(none); fi
+fi
+if command -v apt-get >/dev/null 2>&1 && [ "${as_root[0]:-}" != none ]; then
+    echo "[setup] installing system packages: $missing"
+    # shellcheck disable=SC2086
+    if ! "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $missing 2>&1 >/dev/null | quiet_debconf; then
+        "${as_root[@]}" apt-get update -qq
+        # shellcheck disable=SC2086
+        "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $missing 2>&1 >/dev/null | quiet_debconf
+    fi
+    missing="$(missing_packages)"
+    if [ -z "$missing" ]; then
+        echo "[setup] system libraries ok: FFmpeg (torchcodec), OSMesa (MuJoCo offscreen rendering)"
+        exit 0
+    fi
+fi
+
+echo "error: missing system packages: $missing" >&2
+echo "  ffmpeg: FFmpeg 4-7 shared libraries for torchcodec (LeRobot's video decoder)" >&2
+echo "  libosmesa6: OSMesa, MuJoCo's offscreen OpenGL without a GPU" >&2
+echo "Fix: sudo apt-get install $missing (other distributions: the FFmpeg and OSMesa libraries), then rerun;" >&2
+echo "or set LEROBOT_FOCAL_SKIP_SYSTEM_LIBS=1 to continue without them." >&2
+if [ "${LEROBOT_FOCAL_SKIP_SYSTEM_LIBS:-0}" = 1 ]; then
+    echo "[setup] warning: continuing without $missing (LEROBOT_FOCAL_SKIP_SYSTEM_LIBS=1)" >&2
+    exit 0
+fi
+exit 1

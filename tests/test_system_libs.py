@@ -1,0 +1,29 @@
+"""The system libraries the README's set-up installs (scripts/system_libs.sh) are there and used: a LeRobot
+command runs without torchcodec's FFmpeg loading traceback, and OSMesa is found (the OpenGL comparison in
+tests/envs/test_pointcloud.py needs it and fails without it)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def test_system_libs_check_passes():
+    proc = subprocess.run([str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "FFmpeg (torchcodec), OSMesa" in proc.stdout
+
+
+def test_lerobot_command_loads_torchcodec_quietly():
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    proc = subprocess.run([str(BIN / "lerobot-info")], capture_output=True, text=True, timeout=300, env=env)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    assert "libtorchcodec" not in out and "Falling back to 'pyav'" not in out, (
+        "torchcodec cannot load FFmpeg: run ./scripts/setup.sh (installs ffmpeg) or apt-get install ffmpeg\n" + out[-3000:]
+    )
