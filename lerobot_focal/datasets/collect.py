@@ -6,6 +6,10 @@
 * ``--tasks``: MetaWorld v3 task names and/or difficulty groups (easy, medium, hard, very_hard), comma-separated.
 * Each task gets ``--episodes`` *successful* episodes (default 10). Attempts use seeds ``seed, seed+1, ...``;
   failed attempts are dropped, and a task gives up after ``--max_attempts`` (default 3 x episodes).
+* ``--until full`` (default) runs every episode for the whole ``--max_steps`` and keeps it when MetaWorld's
+  success signal held on at least ``--min_success_steps`` steps (5), as DP3 collects the data the paper trains
+  on: 10 demos are then 2000 frames, post-success behaviour included. ``--until success`` stops each episode at
+  its first success (about 4x fewer frames; the behaviour of earlier versions).
 * ``--obs_types``: any of state, pointcloud, pixels, env_state (comma-separated). The dataset always has
   ``action`` (4,) and ``observation.state`` (9,); pointcloud adds ``observation.pointcloud`` (512, 3), pixels adds
   ``observation.image`` (H, W, 3) and env_state adds MetaWorld's 39-d ``observation.environment_state``: the
@@ -46,6 +50,8 @@ class CollectConfig:
     image_size: int = 128
     num_points: int = 512
     push_to_hub: bool = False
+    until: str = "full"  # "full": whole episodes, kept when successful ≥ min_success_steps; "success": stop at it
+    min_success_steps: int = 5
 
     @property
     def attempts_limit(self) -> int:
@@ -162,11 +168,27 @@ def _open_dataset(cfg: CollectConfig, features: dict, fps: int):
     )
 
 
-def rollout_expert(env, seed: int, max_steps: int, want_pixels: bool, stop: _GracefulStop | None = None):
-    """One scripted-expert episode; returns (frames, success). Frames hold the observation *before* each action."""
+def rollout_expert(
+    env,
+    seed: int,
+    max_steps: int,
+    want_pixels: bool,
+    stop: _GracefulStop | None = None,
+    *,
+    until: str = "success",
+    min_success_steps: int = 1,
+):
+    """One scripted-expert episode; returns (frames, success). Frames hold the observation *before* each action.
+
+    ``until="success"`` ends the episode at the first success (the env terminates there). ``until="full"`` runs
+    all ``max_steps`` (ignoring the env's terminate-on-success) and counts the episode successful when the success
+    signal was on for at least ``min_success_steps`` steps, DP3's rule for keeping a demonstration.
+    """
+    if until not in ("success", "full"):
+        raise ValueError(f"until must be 'success' or 'full', got {until!r}")
     obs, _ = env.reset(seed=seed)
     frames = []
-    success = False
+    success_steps = 0
     for _ in range(max_steps):
         if stop is not None:
             stop.check()
@@ -180,11 +202,12 @@ def rollout_expert(env, seed: int, max_steps: int, want_pixels: bool, stop: _Gra
             frame["observation.image"] = obs["pixels"] if "pixels" in obs else np.ascontiguousarray(env.render())
         frames.append(frame)
         obs, _, terminated, truncated, info = env.step(action)
-        if info["is_success"]:
-            success = True
-        if terminated or truncated:
+        success_steps += bool(info["is_success"])
+        if until == "success" and (terminated or truncated):
             break
-    return frames, success
+        if until == "full" and truncated:
+            break
+    return frames, success_steps >= (min_success_steps if until == "full" else 1)
 
 
 def collect(cfg: CollectConfig) -> dict:
@@ -221,7 +244,10 @@ def collect(cfg: CollectConfig) -> dict:
                     while have < cfg.episodes and task_state["attempts"] < cfg.attempts_limit:
                         seed = task_state["next_seed"]
                         bar.set_postfix_str(f"{task} seed={seed} failures={task_state['failures']}")
-                        frames, success = rollout_expert(env, seed, cfg.max_steps, want_pixels, stop)
+                        frames, success = rollout_expert(
+                            env, seed, cfg.max_steps, want_pixels, stop, until=cfg.until,
+                            min_success_steps=cfg.min_success_steps,
+                        )
                         # Advance the seed before writing: a crash mid-write skips a seed, never repeats one.
                         task_state["next_seed"] = seed + 1
                         task_state["attempts"] += 1
@@ -280,6 +306,10 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
     parser.add_argument("--seed", type=int, default=0, help="first reset seed of each task")
     parser.add_argument("--image_size", type=int, default=128)
     parser.add_argument("--num_points", type=int, default=512)
+    parser.add_argument("--until", choices=("full", "success"), default="full",
+                        help="full: run every episode to --max_steps and keep it when successful on at least "
+                             "--min_success_steps steps (DP3's data); success: stop at the first success")
+    parser.add_argument("--min_success_steps", type=int, default=5)
     parser.add_argument("--push_to_hub", action="store_true")
     args = parser.parse_args(argv)
     obs_types = tuple(dict.fromkeys(o.strip() for o in args.obs_types.split(",") if o.strip()))
@@ -292,6 +322,7 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
         root=args.root, tasks=[t for t in args.tasks.split(",") if t.strip()], repo_id=args.repo_id,
         episodes=args.episodes, obs_types=obs_types, max_steps=args.max_steps, max_attempts=args.max_attempts,
         seed=args.seed, image_size=args.image_size, num_points=args.num_points, push_to_hub=args.push_to_hub,
+        until=args.until, min_success_steps=args.min_success_steps,
     )
 
 

@@ -98,6 +98,9 @@ class FocalConfig(PreTrainedConfig):
             # A point cloud is a STATE feature to LeRobot; MIN_MAX per xyz channel is DP3's "limits" normaliser.
             "VISUAL": NormalizationMode.MEAN_STD,
             "STATE": NormalizationMode.MIN_MAX,
+            # observation.environment_state (object poses); dimensions constant in the demos keep a unit scale
+            # (see processor_focal.widen_degenerate_min_max).
+            "ENV": NormalizationMode.MIN_MAX,
             "ACTION": NormalizationMode.MIN_MAX,
         }
     )
@@ -129,6 +132,9 @@ class FocalConfig(PreTrainedConfig):
     use_state: bool = True
     use_env_state: bool = False
     state_feature_dim: int = 64
+    # On by default so ordinary LeRobot camera datasets train as they are; the point-cloud presets
+    # (configs/focal_*.json) turn it off, as in DP3, so a dataset that also holds frames does not silently add a
+    # ResNet-18 to the condition.
     use_images: bool = True
     vision_backbone: str = "resnet18"
     # No download at run time: torchvision names such as "ResNet18_Weights.IMAGENET1K_V1" work only where

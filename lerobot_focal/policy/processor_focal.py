@@ -312,6 +312,41 @@ def per_channel_pointcloud_stats(stats: dict[str, Any], num_channels: int) -> di
     return out
 
 
+#: A MIN_MAX range narrower than this is a dimension that is (nearly) constant in the data.
+DEGENERATE_RANGE = 1e-4
+
+
+def widen_degenerate_min_max(
+    stats: dict[str, dict[str, Any]], features: dict[str, PolicyFeature], norm_map: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """Give MIN_MAX dimensions that are constant in the data a unit scale, centred on their value.
+
+    LeRobot's MIN_MAX divides by (max − min) and falls back to 1e-8 when they are equal, so a dimension that
+    never moves in the demonstrations (an object coordinate of a task that never touches it, a second object
+    absent from a task) but moves at evaluation is scaled by ~1e8 and swamps the condition. Like DP3's
+    "limits" normaliser, such a dimension is shifted to 0 and left unscaled: min, max = value ∓ 1, so the
+    normalised value is (x − value). Returns a new stats dict; other features and dimensions are unchanged.
+    """
+    out = dict(stats)
+    for key, feature in features.items():
+        mode = norm_map.get(feature.type.value) if hasattr(feature.type, "value") else None
+        if key not in stats or str(getattr(mode, "value", mode)) != "MIN_MAX":
+            continue
+        entry = stats[key]
+        if "min" not in entry or "max" not in entry:
+            continue
+        lo = torch.as_tensor(entry["min"], dtype=torch.float32)
+        hi = torch.as_tensor(entry["max"], dtype=torch.float32)
+        flat = (hi - lo).abs() < DEGENERATE_RANGE
+        if not bool(flat.any()):
+            continue
+        mid = (lo + hi) / 2
+        out[key] = {**entry, "min": torch.where(flat, mid - 1.0, lo), "max": torch.where(flat, mid + 1.0, hi)}
+        logger.info("%s: %d dimension(s) constant in the data keep a unit scale: %s", key, int(flat.sum()),
+                    torch.nonzero(flat).flatten().tolist()[:16])
+    return out
+
+
 def make_focal_pre_post_processors(
     config: FocalConfig,
     dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
@@ -330,9 +365,12 @@ def make_focal_pre_post_processors(
         channels = config.input_features[key].shape[-1]
         stats[key] = per_channel_pointcloud_stats(stats[key], channels)
     meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
+    # Before any statistic is used or adjusted: a NaN/inf in the data shows up here as non-finite stats.
     check_dataset_stats(stats, [*config.used_observation_keys, ACTION], meta)
-    s = make_default_policy_processor_steps(config, stats)
     used = {k: config.input_features[k] for k in config.used_observation_keys}
+    if stats is not None:
+        stats = widen_degenerate_min_max(stats, {**used, **config.output_features}, config.normalization_mapping)
+    s = make_default_policy_processor_steps(config, stats)
     # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
     shape_check = FocalInputShapeStep(shapes={k: list(ft.shape) for k, ft in used.items()})
     normalize = NormalizerProcessorStep(

@@ -56,8 +56,8 @@ def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
 
     preset = PRESETS["cpu"].with_overrides(**TINY)
     good = RunSpec("reach", "diffusion", 0, preset, task_data(work, "reach", preset), work)
-    broken_data = task_data(work / "nowhere", "reach", preset)  # no dataset there: lerobot-train fails
-    bad = RunSpec("reach", "focal", 7, preset, broken_data, work)
+    broken = preset.with_overrides(extra_train_args=("--policy.no_such_field=1",))  # lerobot-train refuses it
+    bad = RunSpec("reach", "focal", 7, broken, task_data(work, "reach", preset), work)
     results = ResultsFile(tmp_path / "results.jsonl")
     run_ray([good, bad], results.append, retries=1, init_kwargs={"num_cpus": 2, "include_dashboard": False})
 

@@ -28,15 +28,18 @@ def _load(root):
     return LeRobotDataset(REPO_ID, root=root)
 
 
-def _replay_succeeds(episode_actions, seed):
+def _replay_success_steps(episode_actions, seed):
+    """Steps on which MetaWorld reports success when the stored actions are replayed from the episode's seed."""
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 
     env = FocalMetaworldEnvConfig(task="reach", obs_type="state").make_single_env()
     try:
         env.reset(seed=seed)
+        steps = 0
         for action in episode_actions:
             *_, info = env.step(np.asarray(action, dtype=np.float32))
-        return bool(info["is_success"])
+            steps += bool(info["is_success"])
+        return steps
     finally:
         env.close()
 
@@ -71,17 +74,32 @@ def test_collect_interrupt_then_resume(tmp_path):
     ds = _load(root)
     assert ds.num_episodes == 3
     lengths = list(ds.meta.episodes["length"])
-    assert all(0 < n < 200 for n in lengths)  # reach's expert ends early: episodes stop at success
+    assert lengths == [200, 200, 200]  # DP3's collection: whole episodes, post-success behaviour included
     assert set(t for tasks in ds.meta.episodes["tasks"] for t in tasks) == {"Reach a goal position"}
     # Point-cloud stats are per xyz channel, as the policy's normaliser expects.
     assert np.asarray(ds.meta.stats["observation.pointcloud"]["mean"]).shape == (3,)
-    # Every stored episode is a success: replaying its actions from its seed succeeds (no failures on reach,
-    # so episode i used seed i).
+    # Every stored episode is a success on ≥ 5 steps: replaying its actions from its seed shows it (no failures
+    # on reach, so episode i used seed i).
     assert json.loads((root / "focal_collect_state.json").read_text())["reach-v3"]["failures"] == 0
     for ep in range(3):
         start = int(ds.meta.episodes["dataset_from_index"][ep])
         actions = [ds.hf_dataset[start + i]["action"] for i in range(lengths[ep])]
-        assert _replay_succeeds(actions, seed=ep)
+        assert _replay_success_steps(actions, seed=ep) >= 5
+
+
+def test_collect_until_success_stops_at_the_first_success(tmp_path):
+    root = tmp_path / "mw_short"
+    proc = _collect("--root", str(root), "--tasks", "reach", "--episodes", "2", "--obs_types", "state",
+                    "--until", "success")
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 0, out
+    ds = _load(root)
+    lengths = list(ds.meta.episodes["length"])
+    assert len(lengths) == 2 and all(0 < n < 200 for n in lengths)  # reach's expert succeeds early
+    for ep in range(2):
+        start = int(ds.meta.episodes["dataset_from_index"][ep])
+        actions = [ds.hf_dataset[start + i]["action"] for i in range(lengths[ep])]
+        assert _replay_success_steps(actions, seed=ep) == 1  # the episode ends on its first success
 
 
 def test_collect_drops_failed_episodes(tmp_path):

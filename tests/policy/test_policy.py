@@ -137,6 +137,32 @@ def test_preprocessor_leaves_unused_inputs_such_as_uint16_depth_alone():
     assert out["observation.images.depth"].to(torch.int32).max().item() == 60000
 
 
+def test_environment_state_is_min_max_normalised_and_constant_dimensions_keep_a_unit_scale(tmp_path):
+    """observation.environment_state is normalised like the state; a dimension that never moves in the demos
+    (here dim 1) is shifted to 0 and left unscaled instead of being divided by LeRobot's 1e-8 fallback, and the
+    saved preprocessor reloads with the same statistics (what lerobot-eval uses)."""
+    from lerobot.processor import PolicyProcessorPipeline
+
+    from lerobot_focal.policy import make_focal_pre_post_processors
+
+    cfg = small_config(pointcloud=None, use_env_state=True)
+    cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (3,))
+    stats = {
+        "observation.state": {"min": torch.zeros(9), "max": torch.full((9,), 2.0)},
+        "observation.environment_state": {"min": torch.tensor([0.0, 0.7, -1.0]), "max": torch.tensor([4.0, 0.7, 1.0])},
+        "action": {"min": torch.zeros(3), "max": torch.tensor([1.0, 1.0, 0.0])},  # action dim 2 constant too
+    }
+    pre, post = make_focal_pre_post_processors(cfg, dataset_stats=stats)
+    obs = {"observation.state": torch.ones(9), "observation.environment_state": torch.tensor([2.0, 1.2, 0.5])}
+    out = pre(dict(obs))
+    torch.testing.assert_close(out["observation.environment_state"], torch.tensor([[0.0, 0.5, 0.5]]))
+    action = post(torch.tensor([[0.0, 0.0, 0.25]]))
+    torch.testing.assert_close(action, torch.tensor([[0.5, 0.5, 0.25]]))  # constant dim: value + output
+    pre.save_pretrained(tmp_path)
+    reloaded = PolicyProcessorPipeline.from_pretrained(tmp_path, config_filename="policy_preprocessor.json")
+    torch.testing.assert_close(reloaded(dict(obs))["observation.environment_state"], torch.tensor([[0.0, 0.5, 0.5]]))
+
+
 def test_image_only_policy_trains_and_acts():
     policy = small_policy(state=None, pointcloud=None, image=(3, 32, 32))
     batch = {"observation.images.front": torch.rand(2, 2, 3, 32, 32), "action": torch.randn(2, 12, 3)}

@@ -1,6 +1,7 @@
 """Expert demonstrations for the grid: one training and one held-out LeRobotDataset per task, made once.
 
-Both come from `lerobot-focal-collect` (MetaWorld's scripted experts, successful episodes only). Held-out
+Both come from `lerobot-focal-collect` (MetaWorld's scripted experts; full-length episodes kept when successful
+on ≥ 5 steps, as DP3 collects them). One pair per observation type a method of the grid reads. Held-out
 episodes use seeds far from the training ones (``HELDOUT_SEED``) so the open-loop metrics see unseen object
 placements. Collection resumes, so a grid interrupted while collecting completes the datasets on its next run.
 Runs on a cluster read these paths: put ``--work`` on a filesystem every node sees.
@@ -8,6 +9,7 @@ Runs on a cluster read these paths: put ``--work`` on a filesystem every node se
 
 from __future__ import annotations
 
+import fcntl
 import json
 import subprocess
 import sys
@@ -28,23 +30,28 @@ class TaskData:
     heldout_repo_id: str
 
 
-def obs_types(preset: GridPreset) -> str:
-    types = [preset.obs_type if preset.obs_type in ("state", "pointcloud") else "pixels"]
+def obs_types(preset: GridPreset, obs_type: str | None = None) -> str:
+    obs_type = obs_type or preset.obs_type
+    types = [obs_type if obs_type in ("state", "pointcloud") else "pixels"]
     if preset.env_state:
         types.append("env_state")
     return ",".join(types)
 
 
-def task_data(work: Path, task: str, preset: GridPreset) -> TaskData:
+def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None) -> TaskData:
+    obs_type = obs_type or preset.obs_type
     base = work / "data" / preset.name / task
+    if obs_type != preset.obs_type:
+        base = base / obs_type
     return TaskData(task, base / "train", f"local/{task}_train", base / "heldout", f"local/{task}_heldout")
 
 
-def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, preset: GridPreset, log: Path) -> None:
+def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, preset: GridPreset, log: Path,
+             obs_type: str | None) -> None:
     cmd = [
         sys.executable, "-m", "lerobot_focal.datasets.collect",
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
-        "--obs_types", obs_types(preset), "--max_steps", str(preset.episode_length), "--seed", str(seed),
+        "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
     ]
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "a") as f:
@@ -59,9 +66,28 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         )
 
 
-def ensure_task_data(work: Path, task: str, preset: GridPreset) -> TaskData:
-    data = task_data(work, task, preset)
-    log = work / "logs" / f"collect_{preset.name}_{task}.log"
-    _collect(data.train_root, data.train_repo_id, task, preset.demos, 0, preset, log)
-    _collect(data.heldout_root, data.heldout_repo_id, task, preset.heldout_demos, HELDOUT_SEED, preset, log)
+def ensure_task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None) -> TaskData:
+    """Collect (or complete) the task's training and held-out datasets under ``work``."""
+    return collect_task_data(task_data(work, task, preset, obs_type), preset, obs_type, work / "logs")
+
+
+def collect_task_data(data: TaskData, preset: GridPreset, obs_type: str | None, log_dir: Path) -> TaskData:
+    """Called by every run before it trains: the first run of a (task, obs type) collects, later ones find the
+    data complete; a lock file keeps concurrent runs from writing the same dataset twice."""
+    name = f"{preset.name}_{data.task}_{obs_type or preset.obs_type}"
+    log = log_dir / f"collect_{name}.log"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with open(log_dir / f".collect_{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, 0),
+                                              (data.heldout_root, data.heldout_repo_id, preset.heldout_demos,
+                                               HELDOUT_SEED)):
+            if _complete(root, episodes):
+                continue
+            _collect(root, repo_id, data.task, episodes, seed, preset, log, obs_type)
     return data
+
+
+def _complete(root: Path, episodes: int) -> bool:
+    info = root / "meta" / "info.json"
+    return info.exists() and json.loads(info.read_text())["total_episodes"] >= episodes

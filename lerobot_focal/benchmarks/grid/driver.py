@@ -18,8 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from .datasets import ensure_task_data
-from .methods import resolve_methods
+from .methods import resolve_method_phases
 from .presets import PRESETS
 from .results import ResultsFile
 from .run import RunSpec
@@ -33,7 +32,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     p.add_argument("--tasks", default=DEV_TASKS,
                    help="MetaWorld v3 tasks and/or groups (easy, medium, hard, very_hard); default: the development set")
-    p.add_argument("--methods", default="core", help="comma-separated methods, 'core' or 'all' (default: core)")
+    p.add_argument("--methods", default="core",
+                   help="comma-separated methods, 'core', 'all' or 'plateau'; '|' separates phases: every run of a "
+                        "phase comes before the next phase's (default: core)")
     p.add_argument("--seeds", default=None, help="comma-separated training seeds (default: the preset's)")
     p.add_argument("--out", type=Path, required=True, help="results.jsonl, report.md and plots go here")
     p.add_argument("--work", type=Path, default=None, help="datasets, checkpoints, logs (default: outputs/bench)")
@@ -45,7 +46,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--gpus-per-run", type=float, default=0.0)
     p.add_argument("--retries", type=int, default=1, help="extra attempts for a failed run (default 1)")
     p.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
-    for name in ("steps", "batch_size", "eval_every", "eval_episodes", "demos", "heldout_demos", "episode_length"):
+    for name in ("steps", "batch_size", "eval_every", "eval_episodes", "demos", "heldout_demos", "episode_length",
+                 "final_episodes"):
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
@@ -58,20 +60,25 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     overrides = {k: v for k, v in dict(
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
+        final_episodes=args.final_episodes,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
                                for t in g))
-    methods = resolve_methods(args.methods)
+    phases = resolve_method_phases(args.methods)
+    methods = [m for phase in phases for m in phase]
     seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(preset.seeds)
     work = (args.work or Path("outputs/bench")).resolve()
     from .datasets import task_data
 
-    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset), work)
-             for s in seeds for t in tasks for m in methods]  # seed-major: a cut-short grid has whole seeds
-    return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks, "methods": [m.name for m in methods], "seeds": seeds}
+    # Phase-major, then seed-major: a cut-short grid has whole phases, and within one whole seeds.
+    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset, m.obs_type), work)
+             for phase in phases for s in seeds for t in tasks for m in phase]
+    return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
+                   "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],
+                   "seeds": seeds}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,10 +101,6 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "grid.json").write_text(__import__("json").dumps(grid, indent=2, default=str))
 
     from tqdm import tqdm
-
-    for task in dict.fromkeys(s.task for s in todo):
-        print(f"[grid] expert demos for {task} (collected once, reused by every run)", flush=True)
-        ensure_task_data(todo[0].work, task, todo[0].preset)
 
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), unit="run", file=sys.stdout)
     failed: list[str] = []

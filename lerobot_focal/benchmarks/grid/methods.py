@@ -4,6 +4,13 @@ All methods share the preset's U-Net size, optimiser settings, batch size and st
 the results is a difference of method. focal's ablations are its own config switches (`--policy.ablation`, see
 `lerobot_focal.policy.configuration_focal.ABLATIONS`); `diffusion` is LeRobot's policy unchanged, sampled with
 DDIM in 10 steps; `diffusion_fco` is the plugin's "DP w. FCO" (LeRobot's diffusion plus the FCO loss).
+
+Consistency target θ⁻: each method gets the one its own authors use. focal follows the paper (EMA); the
+FlowPolicy-style ablations (adjacent anchors r = τ + Δ) use the online weights under stop-gradient, as
+FlowPolicy's and FocalPolicy's public code do. With Δ = 0.01 the data signal enters only at τ ≥ 0.99 and must
+hop ~100 times to reach the noise end; behind an EMA whose time constant is hundreds of steps each hop waits,
+so an EMA target starves those ablations at CPU budgets (`*_ema` variants keep that comparison available).
+``focal_online`` reports focal with the online target beside the paper's EMA.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ class Method:
     label: str  # as in the paper's tables
     policy_type: str
     extra: tuple[str, ...] = ()
+    obs_type: str | None = None  # focal_metaworld obs_type for this method's data and env; None = the preset's
 
     def train_args(self, preset: GridPreset) -> list[str]:
         dims = "[" + ",".join(str(d) for d in preset.down_dims) + "]"
@@ -31,20 +39,23 @@ class Method:
             f"--policy.device={preset.device}",
             "--policy.push_to_hub=false",
         ]
-        return common + _INPUTS[self.policy_type](preset) + list(self.extra)
+        return common + _INPUTS[self.policy_type](preset, self.obs_type_for(preset)) + list(self.extra)
+
+    def obs_type_for(self, preset: GridPreset) -> str:
+        return self.obs_type or preset.obs_type
 
 
-def _focal_inputs(preset: GridPreset) -> list[str]:
+def _focal_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     args = []
     if preset.focal_encoder_dim is not None:
         dim = preset.focal_encoder_dim
         args += [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
     # With a point cloud focal reads it and the 9-d state (DP3's inputs); without one, the object poses.
-    use_env_state = preset.env_state and preset.obs_type != "pointcloud"
-    return args + [f"--policy.use_env_state={str(use_env_state).lower()}"]
+    use_env_state = preset.env_state and obs_type != "pointcloud"
+    return args + [f"--policy.use_env_state={str(use_env_state).lower()}", "--policy.use_images=false"]
 
 
-def _diffusion_inputs(preset: GridPreset) -> list[str]:
+def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     if not preset.env_state:
         raise ValueError(
             f"preset {preset.name!r} gives no observation.environment_state, and LeRobot's diffusion needs it (or "
@@ -60,23 +71,26 @@ def _diffusion_inputs(preset: GridPreset) -> list[str]:
     ]
 
 
-_INPUTS: dict[str, Callable[[GridPreset], list[str]]] = {
+_INPUTS: dict[str, Callable[[GridPreset, str], list[str]]] = {
     "focal": _focal_inputs,
     "diffusion": _diffusion_inputs,
     "diffusion_fco": _diffusion_inputs,
 }
 
 
-def _ablation(name: str, label: str) -> Method:
-    return Method(name, label, "focal", (f"--policy.ablation={name}",))
+ONLINE = "--policy.consistency_target=online"
+
+
+def _ablation(name: str, label: str, *extra: str) -> Method:
+    return Method(name, label, "focal", (f"--policy.ablation={name}", *extra))
 
 
 METHODS: dict[str, Method] = {
     m.name: m
     for m in [
         Method("focal", "FocalPolicy", "focal"),
-        _ablation("wo_las", "w/o LAS"),
-        _ablation("wo_fco_las", "w/o FCO & LAS"),
+        _ablation("wo_las", "w/o LAS", ONLINE),
+        _ablation("wo_fco_las", "w/o FCO & LAS", ONLINE),
         _ablation("time_only_fco", "L_time only"),
         _ablation("freq_only_fco", "L_freq only"),
         _ablation("fixed_r", "fixed r = 1"),
@@ -84,7 +98,10 @@ METHODS: dict[str, Method] = {
         _ablation("fco_prox_freq", "FCO-Prox-Freq"),
         _ablation("anchor_0.4_0.5", "anchor (0.4, 0.5)"),
         _ablation("anchor_1.4_0.5", "anchor (1.4, 0.5)"),
-        Method("focal_online", "focal, online target", "focal", ("--policy.consistency_target=online",)),
+        Method("focal_online", "FocalPolicy (online target)", "focal", (ONLINE,)),
+        Method("focal_pc", "FocalPolicy (512-pt cloud)", "focal", obs_type="pointcloud"),
+        Method("wo_las_ema", "w/o LAS (EMA target)", "focal", ("--policy.ablation=wo_las",)),
+        Method("wo_fco_las_ema", "w/o FCO & LAS (EMA target)", "focal", ("--policy.ablation=wo_fco_las",)),
         Method("diffusion", "DP (DDIM 10)", "diffusion"),
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
     ]
@@ -92,23 +109,46 @@ METHODS: dict[str, Method] = {
 
 #: What `--methods all` expands to: the full comparison of the paper's tables.
 PAPER_METHODS: tuple[str, ...] = tuple(METHODS)
-#: The issue's minimum comparison, what the CPU run in docs/benchmarks/ covers.
+#: The minimum comparison, what the smoke-scale CPU grid in docs/benchmarks/grid_cpu covers.
 CORE_METHODS: tuple[str, ...] = ("focal", "wo_las", "wo_fco_las", "diffusion")
+#: The plateau grid, in phases: the first answers the main question (focal against the strongest baseline and
+#: the FlowPolicy objective), the second the rest of the comparison, the third focal on point clouds.
+PLATEAU_PHASES: tuple[tuple[str, ...], ...] = (
+    ("focal", "diffusion", "wo_fco_las"),
+    ("focal_online", "wo_las", "diffusion_fco"),
+    ("focal_pc",),
+)
+
+
+def resolve_method_phases(spec: str) -> list[list[Method]]:
+    """Methods in run phases: ``a,b|c`` runs every (task, seed) of a and b before any of c. ``plateau`` expands
+    to :data:`PLATEAU_PHASES`, ``core`` and ``all`` to one phase each. A method appears once, in its first phase."""
+    choices = f"core, all, plateau, {', '.join(METHODS)}"
+    phases: list[list[str]] = []
+    seen: set[str] = set()
+    for phase_spec in spec.split("|"):
+        phase: list[str] = []
+        for item in (s.strip() for s in phase_spec.split(",")):
+            if not item:
+                continue
+            if item == "plateau":
+                for extra in PLATEAU_PHASES:
+                    phases.append([m for m in extra if m not in seen])
+                    seen.update(extra)
+                continue
+            names = PAPER_METHODS if item == "all" else CORE_METHODS if item == "core" else (item,)
+            for name in names:
+                if name not in METHODS:
+                    raise ValueError(f"unknown method {name!r}; choose from: {choices}")
+                if name not in seen:
+                    phase.append(name)
+                    seen.add(name)
+        phases.append(phase)
+    phases = [p for p in phases if p]
+    if not phases:
+        raise ValueError(f"no method given; choose from: {choices}")
+    return [[METHODS[n] for n in p] for p in phases]
 
 
 def resolve_methods(spec: str) -> list[Method]:
-    names: list[str] = []
-    for item in (s.strip() for s in spec.split(",")):
-        if not item:
-            continue
-        if item == "all":
-            names += PAPER_METHODS
-        elif item == "core":
-            names += CORE_METHODS
-        elif item in METHODS:
-            names.append(item)
-        else:
-            raise ValueError(f"unknown method {item!r}; choose from: core, all, {', '.join(METHODS)}")
-    if not names:
-        raise ValueError(f"no method given; choose from: core, all, {', '.join(METHODS)}")
-    return [METHODS[n] for n in dict.fromkeys(names)]
+    return [m for phase in resolve_method_phases(spec) for m in phase]

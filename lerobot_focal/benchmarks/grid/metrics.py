@@ -84,6 +84,27 @@ def compounding_error(expert: np.ndarray, policy: np.ndarray, position_dims: int
     return np.linalg.norm(e - p, axis=1)
 
 
+def paired_difference(a: Sequence[float], b: Sequence[float], confidence: float = 0.95) -> dict:
+    """Mean of the paired differences a_i − b_i with a Student-t confidence interval, and wins/ties/losses.
+
+    Pairs share task and seed (same demos, same evaluation episodes), so the task-to-task spread that dominates
+    a difference of two means cancels. With one pair the interval is unbounded (NaN).
+    """
+    from scipy import stats
+
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    n = int(d.size)
+    out = {"n": n, "mean": math.nan, "lo": math.nan, "hi": math.nan,
+           "wins": int((d > 0).sum()), "ties": int((d == 0).sum()), "losses": int((d < 0).sum())}
+    if n == 0:
+        return out
+    out["mean"] = float(d.mean())
+    if n > 1:
+        half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * d.std(ddof=1) / math.sqrt(n))
+        out["lo"], out["hi"] = out["mean"] - half, out["mean"] + half
+    return out
+
+
 def mean_curve(curves: Sequence[np.ndarray]) -> np.ndarray:
     """Element-wise mean of curves cut to the shortest one."""
     n = min(len(c) for c in curves)

@@ -21,13 +21,16 @@ from pathlib import Path
 
 from lerobot_focal.console import console_script
 
-from .datasets import TaskData
+from .datasets import TaskData, collect_task_data
 from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .results import run_key
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
+#: Environment seeds of the final fresh-episode evaluation: seed k of a run evaluates FINAL_EVAL_SEED + 1000·k
+#: onwards, far from the periodic evaluations (seeds k…), the demos (0…) and the held-out set (100 000…).
+FINAL_EVAL_SEED = 200_000
 
 
 class RunFailed(RuntimeError):
@@ -51,6 +54,44 @@ class RunSpec:
     def run_dir(self) -> Path:
         return self.work / "runs" / self.preset.name / self.task / self.method / f"seed{self.seed}"
 
+    @property
+    def obs_type(self) -> str:
+        return METHODS[self.method].obs_type_for(self.preset)
+
+
+def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
+    p = spec.preset
+    return [
+        "--env.type=focal_metaworld",
+        f"--env.task={spec.task}",
+        f"--env.obs_type={spec.obs_type}",
+        f"--env.env_state={str(p.env_state).lower()}",
+        f"--env.episode_length={p.episode_length}",
+        # LeRobot renders evaluation episodes to video; the grid needs none (and no blank frames to encode).
+        "--env.observation_width=64",
+        "--env.observation_height=64",
+        "--env.render_videos=false",
+        f"--env.metrics_path={metrics_path}",
+        "--eval.use_async_envs=false",
+    ]
+
+
+def final_eval_command(spec: RunSpec, checkpoint: Path) -> list[str]:
+    """`lerobot-eval` of the final checkpoint on `final_episodes` fresh episodes (see FINAL_EVAL_SEED)."""
+    p = spec.preset
+    out = spec.run_dir
+    return [
+        console_script("lerobot-eval"),
+        f"--policy.path={checkpoint}",
+        f"--policy.device={p.device}",
+        *_env_args(spec, out / "final_episodes.jsonl"),
+        f"--eval.n_episodes={p.final_episodes}",
+        f"--eval.batch_size={min(p.final_episodes, 25)}",
+        f"--seed={FINAL_EVAL_SEED + 1000 * spec.seed}",
+        f"--output_dir={out / 'final_eval'}",
+        "--job_name=final_eval",
+    ]
+
 
 def train_command(spec: RunSpec) -> list[str]:
     p = spec.preset
@@ -70,20 +111,10 @@ def train_command(spec: RunSpec) -> list[str]:
         f"--log_freq={max(p.eval_every // 2, 1)}",
         "--wandb.enable=false",
         # LeRobot's own periodic evaluation, in the plugin's env (same seeds at every evaluation of a run).
-        "--env.type=focal_metaworld",
-        f"--env.task={spec.task}",
-        f"--env.obs_type={p.obs_type}",
-        f"--env.env_state={str(p.env_state).lower()}",
-        f"--env.episode_length={p.episode_length}",
-        # lerobot-train renders 4 evaluation episodes to video at every evaluation; the grid needs no videos.
-        "--env.observation_width=64",
-        "--env.observation_height=64",
-        "--env.render_videos=false",
-        f"--env.metrics_path={out / 'eval_episodes.jsonl'}",
+        *_env_args(spec, out / "eval_episodes.jsonl"),
         f"--env_eval_freq={p.eval_every}",
         f"--eval.n_episodes={p.eval_episodes}",
         f"--eval.batch_size={p.eval_episodes}",
-        "--eval.use_async_envs=false",
         *p.extra_train_args,
     ]
 
@@ -153,6 +184,7 @@ def run_one(spec: RunSpec) -> dict:
         f.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {spec.key} pid={os.getpid()}\n")
     env = _env(spec.preset)
     p = spec.preset
+    collect_task_data(spec.data, p, None if spec.obs_type == p.obs_type else spec.obs_type, spec.work / "logs")
 
     t0 = time.perf_counter()
     _call(train_command(spec), out / "train.log", env, "lerobot-train")
@@ -165,6 +197,20 @@ def run_one(spec: RunSpec) -> dict:
     updates = [float(x) for x in UPDATE_RE.findall((out / "train.log").read_text(errors="replace"))]
 
     checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
+    final: dict = {}
+    if p.final_episodes:
+        t1 = time.perf_counter()
+        _call(final_eval_command(spec, checkpoint), out / "final_eval.log", env, "final lerobot-eval")
+        fresh = [json.loads(x) for x in (out / "final_episodes.jsonl").read_text().splitlines() if x]
+        fresh = [e for e in fresh if e.get("seed") is not None]
+        if len(fresh) != p.final_episodes:
+            raise RunFailed(f"expected {p.final_episodes} final episodes, found {len(fresh)} in {out}")
+        final = {
+            "success_fresh": sum(e["success"] for e in fresh) / len(fresh),
+            "atv_fresh": sum(e["action_total_variation"] for e in fresh) / len(fresh),
+            "fresh_episodes": len(fresh),
+            "final_eval_s": time.perf_counter() - t1,
+        }
     analysis_path = out / "analysis.json"
     _call(
         [sys.executable, "-m", "lerobot_focal.benchmarks.grid.analyze", str(checkpoint), str(spec.data.heldout_root),
@@ -184,6 +230,7 @@ def run_one(spec: RunSpec) -> dict:
         "success_final": successes[-1],
         "atv": curve[-1]["atv"],  # executed actions of the final evaluation
         "curve": curve,
+        **final,
         **analysis,
         "update_s_per_step": (sum(updates) / len(updates)) if updates else None,
         "wall_s": wall_s,
