@@ -17,6 +17,9 @@
 * Interruption (Ctrl-C, SIGTERM): the episode in progress is dropped, the writer is finalized, and what was
   saved is a valid dataset. Running the same command again resumes: it counts the episodes each task already
   has and only collects the rest (seeds already tried are not reused).
+* A hard kill (SIGKILL, out of memory, power loss) loses at most the episode in flight: every saved episode is
+  closed on disk and committed (`lerobot_focal.datasets.commit_log`), and the rerun first rolls the folder
+  back to the last commit, then continues. The price is one data and one metadata parquet file per episode.
 * ``--push_to_hub`` uploads the finished dataset (needs a Hub login; off by default).
 """
 
@@ -32,6 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from lerobot_focal.datasets import commit_log
 
 STATE_FILE = "focal_collect_state.json"
 VALID_OBS = ("state", "pointcloud", "pixels", "env_state")
@@ -148,24 +153,71 @@ def _episodes_per_task(root: Path, repo_id: str) -> Counter:
     return counts
 
 
+def _unreadable_parquet_files(root: Path) -> list[str]:
+    """Parquet files of the dataset that cannot be opened (e.g. no footer: their writer was killed)."""
+    import pyarrow.parquet as pq
+
+    bad = []
+    for path in sorted([*root.glob("data/**/*.parquet"), *root.glob("meta/**/*.parquet")]):
+        try:
+            pq.ParquetFile(path).metadata  # noqa: B018 - reading the footer is the check
+        except Exception as exc:  # noqa: BLE001 - any failure to read the footer means the same to the user
+            bad.append(f"{path.relative_to(root)} ({exc})")
+    return bad
+
+
 def _open_dataset(cfg: CollectConfig, features: dict, fps: int):
     from lerobot.datasets import LeRobotDataset
 
     info = cfg.root / "meta" / "info.json"
     if info.exists():
+        if commit_log.has_commit(cfg.root):
+            changed = commit_log.rollback(cfg.root)
+            if changed:
+                logging.warning(
+                    "%s: the previous run stopped while saving an episode (killed?); its unfinished files were "
+                    "rolled back (%s). Continuing from the last saved episode.", cfg.root, ", ".join(changed),
+                )
+        else:
+            bad = _unreadable_parquet_files(cfg.root)
+            if bad:
+                raise SystemExit(
+                    f"{cfg.root} holds parquet files that cannot be read: {'; '.join(bad)}. A process writing this "
+                    "dataset was killed before it closed them (this happens to datasets written by LeRobot's own "
+                    "writer, or by lerobot-focal-collect before it committed each episode). Fix: try "
+                    f"`lerobot-focal-salvage-dataset {cfg.root}` to recover the finished episodes into a new folder, "
+                    "or delete the folder and collect again."
+                )
         existing = json.loads(info.read_text())["features"]
         missing = sorted(set(features) - set(existing))
         if missing:
             raise SystemExit(
                 f"{cfg.root} already holds a dataset without {missing}; collect other obs types into a new --root"
             )
-        return LeRobotDataset.resume(cfg.repo_id, root=cfg.root)
-    if cfg.root.exists() and any(cfg.root.iterdir()):
-        raise SystemExit(f"{cfg.root} exists and is not a LeRobotDataset; choose an empty or new --root")
-    return LeRobotDataset.create(
-        repo_id=cfg.repo_id, fps=fps, features=features, root=cfg.root, use_videos=False,
-        robot_type="sawyer", metadata_buffer_size=1,
-    )
+        dataset = LeRobotDataset.resume(cfg.repo_id, root=cfg.root)
+    else:
+        if cfg.root.exists() and any(cfg.root.iterdir()):
+            raise SystemExit(f"{cfg.root} exists and is not a LeRobotDataset; choose an empty or new --root")
+        dataset = LeRobotDataset.create(
+            repo_id=cfg.repo_id, fps=fps, features=features, root=cfg.root, use_videos=False,
+            robot_type="sawyer", metadata_buffer_size=1,
+        )
+    commit_log.commit(cfg.root)  # every file is closed here: the state a kill rolls back to
+    return dataset
+
+
+def _save_durably(dataset, cfg: CollectConfig):
+    """Save the buffered episode, close every file, commit; returns the dataset reopened for the next episode.
+
+    LeRobot writes a parquet footer only when a file is closed, so an episode is safe from a kill only once
+    its files are closed; resuming then starts new files for the next episode (closed files never change).
+    """
+    from lerobot.datasets import LeRobotDataset
+
+    dataset.save_episode()
+    dataset.finalize()
+    commit_log.commit(cfg.root)
+    return LeRobotDataset.resume(cfg.repo_id, root=cfg.root)
 
 
 def rollout_expert(
@@ -258,7 +310,7 @@ def collect(cfg: CollectConfig) -> dict:
                         _save_state(cfg.root, state)
                         for frame in frames:
                             dataset.add_frame({**frame, "task": description})
-                        dataset.save_episode()
+                        dataset = _save_durably(dataset, cfg)
                         have += 1
                         bar.update(1)
                 finally:
