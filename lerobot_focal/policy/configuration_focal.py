@@ -19,11 +19,12 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType, PolicyFeature
-from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+from lerobot.optim import DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
+from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
 OBS_POINTCLOUD = "observation.pointcloud"
@@ -379,8 +380,8 @@ class FocalConfig(PreTrainedConfig):
                     raise ValueError(f"crop_shape {self.crop_shape} does not fit the images {first}.")
 
     # --- LeRobot hooks -------------------------------------------------------------------------------------
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    def get_optimizer_preset(self) -> FusedAdamWConfig:
+        return FusedAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,
