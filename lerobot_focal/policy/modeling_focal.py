@@ -12,8 +12,6 @@ The EMA copy is a frozen submodule, so LeRobot's own `save_pretrained` / `from_p
 step) advances it.
 """
 
-from __future__ import annotations
-
 import copy
 from collections import deque
 
@@ -94,7 +92,7 @@ class FocalPolicy(PreTrainedPolicy):
         self._queues = {key: deque(maxlen=self.config.n_obs_steps) for key in self._obs_keys}
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
-    def train(self, mode: bool = True) -> FocalPolicy:
+    def train(self, mode: bool = True) -> "FocalPolicy":
         super().train(mode)
         if self.ema_model is not None:
             self.ema_model.eval()  # the target/inference network never runs in training mode

@@ -46,8 +46,6 @@ Choices where the paper is silent or ambiguous (each is a config field):
     same ``horizon`` / ``n_action_steps`` / ``prediction_type`` flags for both (the paper's DP3: 16 / 8 / sample).
 """
 
-from __future__ import annotations
-
 from typing import Any
 
 import torch
