@@ -36,9 +36,9 @@ from pathlib import Path
 
 from lerobot_focal.benchmarks.paper_results import PAPER_FOCAL_METAWORLD
 from lerobot_focal.console import console_script
+from lerobot_focal.presets import preset_path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-PRESETS = {"state": REPO_ROOT / "configs" / "focal_cpu_state.json", "pointcloud": REPO_ROOT / "configs" / "focal_cpu.json"}
+PRESETS = {"state": preset_path("cpu_state"), "pointcloud": preset_path("cpu")}
 LOSS_RE = re.compile(r"step:(\S+) .*?\bloss:([0-9.eE+-]+)")
 
 
