@@ -53,6 +53,18 @@ class FocalModel(nn.Module):
         return self.velocity_net(m, t, cond)
 
 
+MODEL_CARD_TAGS = ("focal", "focalpolicy", "flow-matching", "consistency-flow-matching", "action-chunking",
+                   "imitation-learning", "lerobot_policy_focal")
+MODEL_CARD_INTRO = (
+    "**FocalPolicy** (ICML 2026, *Frequency-Optimized Chunking and Locally Anchored Flow Matching for Coherent "
+    "Visuomotor Policy*): one-step consistency flow matching over action macro-trajectories, with Locally "
+    "Anchored Sampling (LAS) of the consistency anchor and the Foresight Composite Objective (FCO: consistency on "
+    "the executed chunk, an orthonormal-DCT frequency term on the whole macro-trajectory). One network evaluation "
+    "per action chunk. Load it with the `lerobot_policy_focal` plugin installed (`pip install "
+    "lerobot_policy_focal`): `lerobot-eval --policy.path=<this repo>` or `lerobot-rollout --policy.path=<this repo>`."
+)
+
+
 def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, update_after_step: int = 0) -> float:
     """DP3's EMA warm-up: 0 for the first updates, then 1 − (1 + s)^−power clipped to [min, max]."""
     s = max(0, step - update_after_step - 1)
@@ -84,6 +96,22 @@ class FocalPolicy(PreTrainedPolicy):
         self.reset()
 
     # --- LeRobot interface ---------------------------------------------------------------------------------
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
+        """LeRobot's card (data, commands, features) plus what `focal` is: LeRobot's template only describes
+        the policy types it ships, and names any other type "a focal policy"."""
+        tags = sorted(set(tags or []) | set(MODEL_CARD_TAGS))
+        card = super().generate_model_card(dataset_repo_id, model_type, license or "apache-2.0", tags, cfg=cfg,
+                                           dataset_meta=dataset_meta)
+        generic = f"This is a **{model_type}** policy trained with"
+        text = card.text
+        if generic in text:
+            head, tail = text.split(generic, 1)
+            text = head + MODEL_CARD_INTRO + "\n\n" + generic + tail
+        else:
+            text = MODEL_CARD_INTRO + "\n\n" + text
+        card.text = text
+        return card
+
     def get_optim_params(self) -> dict:
         return self.model.parameters()
 
