@@ -4,6 +4,7 @@
     lerobot-focal-bench data  [--root DATASET] ...   (stock vs fast dataset reader inside lerobot-train)
     lerobot-focal-bench grid  --preset cpu|paper --tasks ... --methods ... --out DIR   (the paper's protocol)
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
+    lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("grid", add_help=False, help="(task x method x seed) through lerobot-train, the paper's protocol "
                                                  "(see `lerobot-focal-bench grid --help`)")
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
+    sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     if argv is None:
         import sys
 
@@ -49,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.grid.report import main as report_main
 
         return report_main(argv[1:])
+    if argv[:1] == ["train-step"]:
+        from lerobot_focal.benchmarks.train_step import main as train_step_main
+
+        return train_step_main(argv[1:])
     args = parser.parse_args(argv)
 
     if args.command == "speed":

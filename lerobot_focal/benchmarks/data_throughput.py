@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 from lerobot_focal.console import console_script
+from lerobot_focal.presets import preset_path
 
 LOG_RE = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
 CACHED_RE = re.compile(r"fast reader: (\d+) columns cached in memory \(([0-9.]+) MB\)")
@@ -156,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--root", type=Path, default=None,
                         help="LeRobotDataset root (default: write a synthetic 12x40-frame (512,3) point-cloud dataset)")
     parser.add_argument("--repo_id", default="local/focal_synthetic")
-    parser.add_argument("--config", type=Path, default=REPO / "configs" / "focal_cpu.json")
+    parser.add_argument("--config", type=Path, default=preset_path("cpu"))
     parser.add_argument("--batch_size", type=int, default=64)
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--log_freq", type=int, default=2)

@@ -23,9 +23,9 @@ import torch
 
 from lerobot_focal.console import console_script
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
+from lerobot_focal.presets import preset_path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-CPU_PRESET = REPO_ROOT / "configs" / "focal_cpu.json"
+CPU_PRESET = preset_path("cpu")
 
 
 def train(dataset_root: Path, out_dir: Path, steps: int, batch_size: int) -> Path:

@@ -21,7 +21,7 @@ ENV_STATE_KEY = "environment_state"
 #: Voxel size (m) before FPS in the sim envs: 0.01 m is about the pixel footprint of a 128x128 view of the
 #: table, so it only thins the densest regions, and it keeps pure-numpy FPS inside the 30 obs/s budget.
 DEFAULT_VOXEL_SIZE = 0.01
-#: Policy-side key of the point cloud (SPEC §3).
+#: Policy-side key of the point cloud.
 OBS_POINTCLOUD = "observation.pointcloud"
 
 
@@ -52,7 +52,7 @@ def env_features(
     if uses_state(obs_type):
         features[AGENT_POS_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(state_dim,))
     if uses_pointcloud(obs_type):
-        # LeRobot has no point-cloud feature type; STATE is what it infers for such a key anyway (SPEC §3).
+        # LeRobot has no point-cloud feature type; STATE is what it infers for such a key anyway.
         features[POINTCLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(num_points, 3))
     if uses_pixels(obs_type):
         features[PIXELS_KEY] = PolicyFeature(type=FeatureType.VISUAL, shape=(*image_hw, 3))

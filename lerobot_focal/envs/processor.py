@@ -1,7 +1,7 @@
 """Env processor step that delivers the point cloud to the policy as ``observation.pointcloud``.
 
 ``lerobot-eval`` runs ``lerobot.envs.utils.preprocess_observation`` on every raw observation before the env
-processors. Which raw keys survive that call depends on the LeRobot build (SPEC §4 saw extra keys dropped;
+processors. Which raw keys survive that call depends on the LeRobot build (some builds drop unknown keys;
 the installed 0.6.1 passes them through as ``observation.<key>`` float tensors). This step is the one place
 that guarantees the contract whatever that function did: the cloud arrives as float32 (B, P, C) under
 ``observation.pointcloud``, or the rollout fails loudly instead of a policy silently running without it.

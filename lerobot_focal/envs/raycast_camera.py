@@ -3,7 +3,7 @@
 Why: it needs no OpenGL at all (no GPU, no EGL device, no OSMesa library), so point-cloud envs run on any
 machine and inside any worker process. Casting one ray per pixel gives the same z-depth as the rasteriser
 (tests/envs/test_pointcloud.py compares it with an OSMesa render: >= 99 % of pixels within 1 mm) and, with
-the tricks below, a whole 512-point cloud in about 28 ms on one core of this 2-core machine:
+the tricks below, a whole 512-point cloud in about 28 ms on one core of a 2-core CPU:
 
 * ray directions are precomputed once per camera pose, scaled so that z = 1 in the camera frame; MuJoCo
   returns hit distances in units of the direction vector, so the result *is* the z-depth (no division);

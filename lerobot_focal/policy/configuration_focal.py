@@ -19,11 +19,12 @@ from dataclasses import dataclass, field
 from draccus.utils import DecodingError
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType, PolicyFeature
-from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+from lerobot.optim import DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
+from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
 OBS_POINTCLOUD = "observation.pointcloud"
@@ -84,6 +85,102 @@ assert set(PAPER_METHOD) >= {k for fields in ABLATIONS.values() for k in fields}
 @PreTrainedConfig.register_subclass("focal")
 @dataclass
 class FocalConfig(PreTrainedConfig):
+    """Configuration of FocalPolicy: windows, observations, network, method switches, EMA and optimiser.
+
+    Defaults are the paper's settings (its hyper-parameter table); `configs/focal_cpu*.json` shrink the network
+    for CPUs. Every ablation of the paper is a switch here (`ablation` sets a group of the fields below).
+
+    Args:
+        n_obs_steps: Observation steps in the condition (t−1, t), concatenated into the FiLM vector.
+        chunk_size: H, the proximal chunk: supervised by L_time and executed before re-planning.
+        n_chunks: N, chunks in the macro-trajectory; L = N·H steps are predicted (and regularised by L_freq).
+        drop_n_last_frames: Frames at each episode's end that never start a training window; None → H − 1, so
+            the supervised proximal chunk is always real data (the rest of L repeats the last action).
+        normalization_mapping: LeRobot normalisation mode per feature type. A point cloud is a STATE feature
+            (MIN_MAX per xyz channel, DP3's limits); ENV (object poses) is MIN_MAX too; dimensions that are
+            constant in the data keep a unit scale (see `processor_focal.widen_degenerate_min_max`).
+        pointcloud_key: Observation key of the point cloud, (P, 3) or (P, 6) with colour.
+        use_pointcloud: Read the point cloud when the dataset has one.
+        use_pointcloud_color: Use xyz+rgb when the cloud has 6 channels (xyz only otherwise).
+        pointcloud_feature_dim: Output width of the DP3 point-cloud MLP encoder.
+        pointcloud_from_depth: A depth key (e.g. "observation.images.front_depth") to turn into the point cloud in
+            the preprocessor, for robots that record depth because LeRobot cannot record a point cloud.
+        pointcloud_camera_info: cameras.json with the depth camera's intrinsics and pose; None → the dataset's
+            `meta/cameras.json`.
+        pointcloud_camera: Entry of that file; None → derived from the depth key ("…front_depth" → "front").
+        pointcloud_crop_min: Lower corner of the workspace box the cloud is cropped to (robot base frame, m).
+        pointcloud_crop_max: Upper corner of that box.
+        pointcloud_num_points: Points kept by farthest-point sampling.
+        pointcloud_voxel_size: > 0: voxel-grid downsampling before sampling (faster on large frames).
+        pointcloud_depth_unit: Unit of *float* depth from a decoded dataset ("mm", LeRobot's default, or "m");
+            integer frames are raw sensor units times the camera's depth_scale.
+        pointcloud_min_depth: Depths below this (m) count as "no return" (LeRobot's codec decodes 0 as 10 mm).
+        use_state: Read `observation.state` (proprioception) through a small MLP.
+        use_env_state: Read `observation.environment_state` (e.g. MetaWorld's object poses) through the same kind
+            of MLP; off by default, as in the paper (point cloud + state).
+        state_feature_dim: Output width of the state MLP(s).
+        use_images: Read RGB `observation.images.*` through LeRobot's diffusion RGB encoder (the presets turn this
+            off, so a dataset that also holds frames does not silently add a ResNet to the condition).
+        vision_backbone: torchvision backbone of the RGB encoder.
+        pretrained_backbone_weights: torchvision weights name; None trains from scratch (nothing is downloaded).
+        use_group_norm: GroupNorm instead of BatchNorm in the backbone (not with pretrained weights).
+        spatial_softmax_num_keypoints: Keypoints of the RGB encoder's spatial softmax.
+        resize_shape: (H, W) images are resized to before cropping; None keeps them.
+        crop_shape: (H, W) crop; None disables cropping.
+        crop_is_random: Random crop in training (centre crop at inference).
+        use_separate_rgb_encoder_per_camera: One encoder per camera instead of a shared one.
+        down_dims: U-Net channel widths per level; L must be divisible by 2^(levels − 1).
+        kernel_size: U-Net 1-D convolution kernel.
+        n_groups: GroupNorm groups in the U-Net blocks.
+        time_embed_dim: Width of the sinusoidal flow-time embedding.
+        use_film_scale_modulation: FiLM with scale and bias (False: bias only).
+        gradient_checkpointing: Trade compute for memory in the U-Net.
+        time_scale: The flow time is fed to the network as t·time_scale (99, as the authors' code).
+        ablation: One of `ABLATIONS` (the paper's ablations); sets the method fields it names. Those fields
+            (the keys of `PAPER_METHOD`: objective, anchor_sampler, anchor_mu, anchor_sigma, fixed_r, the loss
+            windows and weights, freq_band, consistency_target) default to None, "not given", and are resolved to
+            the ablation's value or the paper's; giving one that contradicts the ablation is a `FocalConfigError`.
+        objective: "fco" (FocalPolicy) or "flowpolicy" (FlowPolicy's segment-wise consistency flow matching).
+        anchor_sampler: Where the consistency anchor r is drawn: "logit_normal" (LAS), "adjacent"
+            (FlowPolicy's r = τ + Δ), "fixed" or "mixture" (the authors' public code).
+        time_eps: ε: τ ~ U[ε, 1], and inference starts from time ε.
+        anchor_mu: μ_r of LAS's logit-normal anchor.
+        anchor_sigma: σ_r of LAS's logit-normal anchor.
+        adjacent_delta: Δ of the adjacent sampler (and of FlowPolicy's velocity mask).
+        fixed_r: r of the fixed sampler.
+        mixture_mu_a: μ of the second logit-normal of the public code's mixture sampler.
+        mixture_sigma_a: σ of that logit-normal.
+        mixture_ratio: Probability of taking the smaller of the two draws in the mixture sampler.
+        time_loss_window: Where L_time acts: "proximal" (the executed chunk) or "macro" (all L steps).
+        time_weight: Weight of L_time (0 gives the L_freq-only ablation).
+        regularizer: The macro-trajectory term: "freq" (L_freq), "time_mse" (time-domain MSE) or "none".
+        freq_loss_window: Where L_freq acts: "macro" or "proximal".
+        freq_weight: λ, the weight of L_freq.
+        freq_band: DCT band L_freq sees: "all", "low" or "high".
+        freq_cutoff: First "high" DCT coefficient; None → L/2.
+        macro_mse_weight: Weight of the "time_mse" regulariser.
+        cfm_num_segments: Segments of FlowPolicy's objective.
+        cfm_boundary: Anchors at or past this use the exact interpolant at the segment end (FlowPolicy).
+        cfm_alpha: Weight of FlowPolicy's velocity-consistency term.
+        consistency_target: θ⁻ of the consistency target: "ema" (the paper) or "online" weights under stop-grad
+            (the authors' code, and FlowPolicy's).
+        num_inference_steps: Network evaluations per chunk (1, the method; > 1 integrates with Euler steps).
+        use_ema: Keep an EMA copy of the network (a frozen submodule saved with the checkpoint).
+        ema_power: DP3's EMA warm-up: decay = 1 − (1 + step)^−power.
+        ema_min_decay: Lower clip of the decay.
+        ema_max_decay: Upper clip of the decay (0.9999).
+        ema_update_after_step: EMA updates before this step copy the weights.
+        use_ema_for_inference: Act with the EMA weights (True) or the online ones.
+        check_finite: Refuse batches with NaN/inf, naming the key.
+        optimizer_lr: AdamW learning rate.
+        optimizer_betas: AdamW betas.
+        optimizer_eps: AdamW epsilon.
+        optimizer_weight_decay: AdamW weight decay.
+        optimizer_grad_clip_norm: Gradient-norm clip applied by lerobot-train.
+        scheduler_name: diffusers learning-rate schedule.
+        scheduler_warmup_steps: Warm-up steps of that schedule.
+    """
+
     # --- windows -------------------------------------------------------------------------------------------
     n_obs_steps: int = 2
     chunk_size: int = 4  # H: proximal chunk = executed chunk
@@ -436,8 +533,8 @@ class FocalConfig(PreTrainedConfig):
                     raise ValueError(f"crop_shape {self.crop_shape} does not fit the images {first}.")
 
     # --- LeRobot hooks -------------------------------------------------------------------------------------
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    def get_optimizer_preset(self) -> FusedAdamWConfig:
+        return FusedAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,

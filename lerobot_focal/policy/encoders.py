@@ -7,12 +7,13 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionRgbEncoder
 from torch import Tensor, nn
+
+from lerobot_focal.policy.network import diffusion_spec
 
 if TYPE_CHECKING:
     from lerobot_focal.policy.configuration_focal import FocalConfig
@@ -54,7 +55,8 @@ class StateEncoder(nn.Module):
 
 
 def _rgb_encoder(config: FocalConfig, image_features: dict) -> DiffusionRgbEncoder:
-    spec = SimpleNamespace(
+    spec = diffusion_spec(
+        input_features=image_features,
         resize_shape=config.resize_shape,
         crop_shape=config.crop_shape,
         crop_is_random=config.crop_is_random,
@@ -62,7 +64,6 @@ def _rgb_encoder(config: FocalConfig, image_features: dict) -> DiffusionRgbEncod
         pretrained_backbone_weights=config.pretrained_backbone_weights,
         use_group_norm=config.use_group_norm,
         spatial_softmax_num_keypoints=config.spatial_softmax_num_keypoints,
-        image_features=image_features,
     )
     return DiffusionRgbEncoder(spec)
 

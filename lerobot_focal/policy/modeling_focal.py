@@ -12,8 +12,6 @@ The EMA copy is a frozen submodule, so LeRobot's own `save_pretrained` / `from_p
 step) advances it.
 """
 
-from __future__ import annotations
-
 import copy
 from collections import deque
 from pathlib import Path
@@ -55,6 +53,18 @@ class FocalModel(nn.Module):
 
     def velocity(self, m: Tensor, t: Tensor, cond: Tensor) -> Tensor:
         return self.velocity_net(m, t, cond)
+
+
+MODEL_CARD_TAGS = ("focal", "focalpolicy", "flow-matching", "consistency-flow-matching", "action-chunking",
+                   "imitation-learning", "lerobot_policy_focal")
+MODEL_CARD_INTRO = (
+    "**FocalPolicy** (ICML 2026, *Frequency-Optimized Chunking and Locally Anchored Flow Matching for Coherent "
+    "Visuomotor Policy*): one-step consistency flow matching over action macro-trajectories, with Locally "
+    "Anchored Sampling (LAS) of the consistency anchor and the Foresight Composite Objective (FCO: consistency on "
+    "the executed chunk, an orthonormal-DCT frequency term on the whole macro-trajectory). One network evaluation "
+    "per action chunk. Load it with the `lerobot_policy_focal` plugin installed (`pip install "
+    "lerobot_policy_focal`): `lerobot-eval --policy.path=<this repo>` or `lerobot-rollout --policy.path=<this repo>`."
+)
 
 
 def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, update_after_step: int = 0) -> float:
@@ -113,6 +123,22 @@ class FocalPolicy(PreTrainedPolicy):
         loaded.checkpoint_file = str(model_file)
         return loaded
 
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
+        """LeRobot's card (data, commands, features) plus what `focal` is: LeRobot's template only describes
+        the policy types it ships, and names any other type "a focal policy"."""
+        tags = sorted(set(tags or []) | set(MODEL_CARD_TAGS))
+        card = super().generate_model_card(dataset_repo_id, model_type, license or "apache-2.0", tags, cfg=cfg,
+                                           dataset_meta=dataset_meta)
+        generic = f"This is a **{model_type}** policy trained with"
+        text = card.text
+        if generic in text:
+            head, tail = text.split(generic, 1)
+            text = head + MODEL_CARD_INTRO + "\n\n" + generic + tail
+        else:
+            text = MODEL_CARD_INTRO + "\n\n" + text
+        card.text = text
+        return card
+
     def get_optim_params(self) -> dict:
         return self.model.parameters()
 
@@ -121,7 +147,7 @@ class FocalPolicy(PreTrainedPolicy):
         self._queues = {key: deque(maxlen=self.config.n_obs_steps) for key in self._obs_keys}
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
-    def train(self, mode: bool = True) -> FocalPolicy:
+    def train(self, mode: bool = True) -> "FocalPolicy":
         super().train(mode)
         if self.ema_model is not None:
             self.ema_model.eval()  # the target/inference network never runs in training mode

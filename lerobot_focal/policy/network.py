@@ -4,15 +4,42 @@ LeRobot's `DiffusionConditionalUnet1d` is exactly the DP/DP3/FlowPolicy U-Net th
 time embedding → MLP, FiLM scale+bias, two residual blocks per level, strided-conv down / transposed-conv up).
 Only `DiffusionConfig`'s horizon check is stricter than the network needs (it demands L % 2**len(down_dims));
 the network itself downsamples len(down_dims) − 1 times, so L = 12 with three levels (12 → 6 → 3) is fine.
-We therefore build the U-Net from a minimal spec object instead of a `DiffusionConfig`.
+The U-Net never reads the horizon, so it is built from a real `DiffusionConfig` (`diffusion_spec`) carrying our
+values and any horizon that passes that check: every field LeRobot's module reads, today or in a later
+version, is there with LeRobot's own default.
 """
 
 from __future__ import annotations
 
-from types import SimpleNamespace
+from typing import Any
 
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUnet1d
+from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
+
+
+def diffusion_spec(*, action_dim: int = 1, input_features: dict | None = None, **fields: Any) -> DiffusionConfig:
+    """A `DiffusionConfig` to build LeRobot's diffusion modules (U-Net, RGB encoder) with focal's settings.
+
+    Fields the config's own ``__post_init__`` would rewrite (``crop_shape`` from ``resize_shape``) are set after
+    construction, so the modules see exactly the values given here.
+    """
+    levels = len(fields.get("down_dims", DiffusionConfig.down_dims))
+    after = {k: fields.pop(k) for k in ("crop_shape",) if k in fields}
+    spec = DiffusionConfig(
+        device="cpu",  # a description of the modules, never moved anywhere itself
+        horizon=2**levels,
+        n_action_steps=1,
+        input_features=dict(input_features or {}),
+        output_features={ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
+        push_to_hub=False,
+        **fields,
+    )
+    for key, value in after.items():
+        setattr(spec, key, value)
+    return spec
 
 
 def unet_downsampling_factor(down_dims: tuple[int, ...] | list[int]) -> int:
@@ -36,8 +63,8 @@ class VelocityUnet(nn.Module):
         time_scale: float = 99.0,
     ):
         super().__init__()
-        spec = SimpleNamespace(
-            action_feature=SimpleNamespace(shape=(action_dim,)),
+        spec = diffusion_spec(
+            action_dim=action_dim,
             down_dims=tuple(down_dims),
             kernel_size=kernel_size,
             n_groups=n_groups,

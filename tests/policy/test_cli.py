@@ -72,6 +72,9 @@ def test_train_saves_checkpoints_with_processors(trained_run):
     assert cfg["type"] == "focal" and cfg["down_dims"] == [32, 64, 128]
     # All three observation kinds made it into the policy's features.
     assert {"observation.state", "observation.pointcloud", "observation.images.front"} <= set(cfg["input_features"])
+    # The policy's optimizer preset (fused AdamW) is named in the checkpoint, so --resume rebuilds it.
+    train_cfg = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "train_config.json").read_text())
+    assert train_cfg["optimizer"]["type"] == "focal_adamw" and train_cfg["optimizer"]["lr"] == cfg["optimizer_lr"]
 
 
 def test_resume_continues_from_the_saved_step(trained_run):

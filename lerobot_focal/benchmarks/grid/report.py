@@ -14,14 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
 from .methods import METHODS
 from .metrics import mean_curve, mean_std, paired_difference
 from .results import ResultsFile
 
-#: The paper's FocalPolicy (512-point clouds, 47 k steps, top-5 of 20-episode evaluations, 3 seeds), success in
-#: %, on the MetaWorld tasks of the development set.
-PAPER_FOCAL_TOP5 = {"pick-place": 70.7, "sweep-into": 70.7, "disassemble": 86.7, "push-wall": 81.0,
-                    "basketball": 100.0}
 PAPER_MARGIN = 10.0  # points: focal's top-5 within this of the paper on each task
 METRIC_KEYS = ("success_top_k", "success_final", "success_fresh", "atv", "atv_fresh", "ts_score",
                "compounding_error", "latency_ms", "nfe", "wall_s", "final_eval_s", "update_s_per_step")

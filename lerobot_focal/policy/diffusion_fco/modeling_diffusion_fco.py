@@ -16,7 +16,7 @@ Loss (one batch; a = expert actions of the horizon, normalised as LeRobot's diff
     L_freq = sum over the horizon × d of (DCT(x̂0) − DCT(a))²  — per sample, then batch mean
 
 with the executed window = steps [n_obs_steps−1, n_obs_steps−1+n_action_steps) of the horizon: exactly the
-actions ``select_action`` executes (supervised window = executed window, SPEC §2). The reductions (mean for
+actions ``select_action`` executes (supervised window = executed window, as in focal). The reductions (mean for
 L_time, sum for L_freq) are the ones of our FCO implementation, which λ = 1e-4 is calibrated for.
 
 x̂0, the clean-trajectory estimate, is recovered from the same network call that produced L_DP (captured with a
@@ -45,8 +45,6 @@ Choices where the paper is silent or ambiguous (each is a config field):
   * Defaults otherwise are ``DiffusionConfig``'s, so "DP" and "DP w. FCO" differ only in the loss; set the
     same ``horizon`` / ``n_action_steps`` / ``prediction_type`` flags for both (the paper's DP3: 16 / 8 / sample).
 """
-
-from __future__ import annotations
 
 from typing import Any
 
