@@ -340,7 +340,8 @@ def collect(cfg: CollectConfig) -> dict:
     if interrupted:
         raise KeyboardInterrupt(f"collection interrupted; {summary['total_episodes']} episodes saved in {cfg.root}")
     if cfg.push_to_hub:
-        dataset.push_to_hub()
+        # The dataset's own files only: not the collection's seed state or its commit record.
+        dataset.push_to_hub(allow_patterns=["data/*", "meta/*"])
     return summary
 
 

@@ -120,3 +120,4 @@ def rollback(root: str | Path) -> list[str]:
             shutil.rmtree(root / rel)
             changed.append(rel + "/")
     return changed
+

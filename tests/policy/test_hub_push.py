@@ -75,3 +75,5 @@ def test_collect_push_to_hub_uploads_the_finished_dataset(tmp_path):
     info = json.loads((pushed / "meta" / "info.json").read_text())
     assert info["total_episodes"] == 1 and "observation.state" in info["features"]
     assert list(pushed.glob("data/**/*.parquet")) and (pushed / "README.md").is_file()
+    # Collection bookkeeping (seed state, the per-episode commit record) stays local.
+    assert not (pushed / ".focal_commit").exists() and not (pushed / "focal_collect_state.json").exists()
