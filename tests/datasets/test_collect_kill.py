@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -62,14 +63,14 @@ def test_sigkill_loses_at_most_the_episode_in_flight_and_a_rerun_completes(tmp_p
         if proc.poll() is None:
             proc.kill()
 
-    # Before any rerun, the folder already is a dataset LeRobot opens, missing at most the episode being saved.
-    before = subprocess.run(_args(root, max(1, saved_at_kill - 1)), env=env, capture_output=True, text=True, timeout=600)
-    assert before.returncode == 0, before.stderr[-3000:]
-    assert _load(root).num_episodes >= saved_at_kill - 1
-
     rerun = subprocess.run(_args(root, 4), env=env, capture_output=True, text=True, timeout=600)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
     assert "dataset: " in rerun.stdout and "(4 episodes)" in rerun.stdout
+    # At most the episode in flight was lost: successful rollouts over both runs = 4 kept + at most 1 lost.
+    match = re.search(r"reach-v3: 4 episodes, (\d+) attempts \((\d+) failed\)", rerun.stdout)
+    assert match, rerun.stdout
+    attempts, failed = map(int, match.groups())
+    assert saved_at_kill >= 2 and attempts - failed <= 5, (saved_at_kill, attempts, failed)
     _check_complete(root, 4)
 
 
