@@ -265,7 +265,7 @@ class FocalPolicy(PreTrainedPolicy):
         which = "EMA" if net is self.ema_model else "online"
         if bad_weights:
             shown = ", ".join(bad_weights[:3]) + (f" and {len(bad_weights) - 3} more" if len(bad_weights) > 3 else "")
-            cause = f"{len(bad_weights)} weight tensors of the {which} network are NaN/inf ({shown})"
+            cause = f"{len(bad_weights)} weight tensor(s) of the {which} network are NaN/inf ({shown})"
         else:
             cause = f"the {which} network's weights are finite, so its activations overflowed"
         return (

@@ -82,7 +82,7 @@ def test_nan_weights_stop_with_an_error_naming_the_checkpoint(checkpoint, tmp_pa
     assert proc.returncode != 0, proc.stdout[-2000:]
     assert "FocalPolicy produced" in proc.stderr and "NaN/inf action value(s)" in proc.stderr, proc.stderr[-3000:]
     assert f"Checkpoint: {ckpt / 'model.safetensors'}" in proc.stderr
-    assert "weight tensors of the EMA network are NaN/inf" in proc.stderr
+    assert "weight tensor(s) of the EMA network are NaN/inf (velocity_net." in proc.stderr
     assert not (tmp_path / "eval" / "eval_info.json").exists()
 
 
