@@ -12,7 +12,13 @@
 # decoding then falls back to pyav, and the OpenGL comparison test skips only while that variable is set.
 set -euo pipefail
 
-has_lib() { ldconfig -p 2>/dev/null | grep -qE "$1"; }
+# ldconfig's output is read whole before grep: `ldconfig -p | grep -q` fails at random under pipefail (grep
+# exits at the first match, ldconfig then dies of SIGPIPE).
+has_lib() {
+    local libs
+    libs="$(ldconfig -p 2>/dev/null || true)"
+    grep -qE "$1" <<<"$libs"
+}
 
 # torchcodec supports FFmpeg 4 to 7 (libavutil 56 to 59); the Debian/Ubuntu package "ffmpeg" brings them.
 ffmpeg_ok() { has_lib 'libavutil\.so\.(56|57|58|59) ' && has_lib 'libavformat\.so\.' && has_lib 'libavdevice\.so\.'; }
