@@ -57,9 +57,11 @@ def commit(root: str | Path) -> None:
             dst = staging / "files" / rel
             dst.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(root / rel, dst)
-    for rel in _files(root):  # closed files must be on disk before the commit that lists them
-        with open(root / rel, "rb") as f:
-            os.fsync(f.fileno())
+    previous = set(json.loads((log / _MANIFEST).read_text())["files"]) if (log / _MANIFEST).is_file() else set()
+    for rel in _files(root):  # new closed files must be on disk before the commit that lists them
+        if rel not in previous:
+            with open(root / rel, "rb") as f:
+                os.fsync(f.fileno())
     manifest = {"files": _files(root), "rewritten": [r for r in _REWRITTEN if (root / r).is_file()]}
     (staging / _MANIFEST).write_text(json.dumps(manifest, indent=1))
     for path in (staging / "files").rglob("*"):
