@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -94,3 +95,26 @@ def test_rerun_rolls_back_an_episode_killed_while_it_was_being_saved(tmp_path):
     assert "the previous run stopped while saving an episode" in rerun.stderr
     assert str(torn.relative_to(root)) in rerun.stderr
     _check_complete(root, 3)
+
+
+def test_unclosed_files_without_a_commit_record_are_named_with_the_salvage_command(tmp_path):
+    """A folder killed before it had a commit record (written by an earlier version, or by LeRobot's writer):
+    collect refuses it, naming the unreadable file and the command that recovers the finished episodes."""
+    root = tmp_path / "mw"
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    first = subprocess.run(_args(root, 2), env=env, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-3000:]
+    shutil.rmtree(root / ".focal_commit")
+    last = sorted((root / "data").rglob("*.parquet"))[-1]
+    last.write_bytes(last.read_bytes()[:-12])  # footer gone, as a killed writer leaves it
+
+    rerun = subprocess.run(_args(root, 3), env=env, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode != 0
+    assert f"{root} holds parquet files that cannot be read: {last.relative_to(root)} (" in rerun.stderr, rerun.stderr
+    assert f"lerobot-focal-salvage-dataset {root}" in rerun.stderr
+
+    salvaged = tmp_path / "mw_salvaged"
+    fix = subprocess.run([sys.executable, "-m", "lerobot_focal.datasets.salvage", str(root), "--out", str(salvaged)],
+                         env=env, capture_output=True, text=True, timeout=600)
+    assert fix.returncode == 0, fix.stderr[-3000:]
+    assert "recovered 2 episode(s)" in fix.stdout
