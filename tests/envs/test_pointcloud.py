@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_focal.envs.pointcloud import (
+from lerobot_focal.geometry.pointcloud import (
     PinholeIntrinsics,
     WorkspaceBounds,
     backproject_depth,
