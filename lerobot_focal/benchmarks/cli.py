@@ -5,6 +5,7 @@
     lerobot-focal-bench grid  --preset cpu|paper --tasks ... --methods ... --out DIR   (the paper's protocol)
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
+    lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
                                                  "(see `lerobot-focal-bench grid --help`)")
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
+    sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
     if argv is None:
         import sys
 
@@ -51,6 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.grid.report import main as report_main
 
         return report_main(argv[1:])
+    if argv[:1] == ["eval-profile"]:
+        from lerobot_focal.benchmarks.eval_profile import main as eval_profile_main
+
+        return eval_profile_main(argv[1:])
     if argv[:1] == ["train-step"]:
         from lerobot_focal.benchmarks.train_step import main as train_step_main
 

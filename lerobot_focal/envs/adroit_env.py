@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .common import ensure_offscreen_gl
+from lerobot_focal.sim.rendering import ensure_offscreen_gl
 
 # Before MuJoCo is imported (it binds its OpenGL backend then): lerobot-eval renders videos of every obs type.
 ensure_offscreen_gl()
@@ -13,10 +13,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .common import (
+from lerobot_focal.geometry.pointcloud import PointCloudSpec, WorkspaceBounds
+from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
+from lerobot_focal.sim.rendering import make_rendering_cheap
+
+from .episode_metrics import EpisodeMetrics
+from .features import (
     AGENT_POS_KEY,
-    EpisodeMetrics,
-    make_rendering_cheap,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -33,8 +36,6 @@ from .focal_adroit import (
     DEFAULT_ADROIT_WORKSPACE_LOW,
     TASK_DESCRIPTIONS,
 )
-from .pointcloud import PointCloudSpec, WorkspaceBounds
-from .raycast_camera import RayCastPointCloudSensor
 
 # DP3's agent_pos: the 24 hand joints (wrist + fingers), without arm joints or object DoFs.
 _HAND_JOINT_PREFIXES = ("WRJ", "FFJ", "MFJ", "RFJ", "LFJ", "THJ")

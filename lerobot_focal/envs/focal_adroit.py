@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
 
-import gymnasium as gym
+from lerobot.envs.configs import EnvConfig
 
-from lerobot.configs import PolicyFeature
-from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
-from lerobot.processor import PolicyProcessorPipeline
-
-from .common import check_obs_type, env_features, env_features_map, resolve_names, uses_pointcloud
-from .processor import PointCloudObservationStep
+from .base import FocalSimEnvConfig
+from .features import check_obs_type, env_features, resolve_names
 
 if TYPE_CHECKING:  # the env module imports gymnasium_robotics and mujoco: only load it when an env is built
     from .adroit_env import FocalAdroitEnv
@@ -53,18 +49,15 @@ def _canonical_task(name: str) -> str:
 
 @EnvConfig.register_subclass("focal_adroit")
 @dataclass
-class FocalAdroitEnvConfig(EnvConfig):
+class FocalAdroitEnvConfig(FocalSimEnvConfig):
     """``task``: hammer, door, pen, 'all', or a comma-separated list. One task per config for training."""
 
     task: str = "hammer"
     # Adroit's control rate: frame_skip 5 x timestep 2 ms.
     fps: int = 100
-    episode_length: int = 200
-    obs_type: str = "pointcloud"
     camera_name: str = DEFAULT_ADROIT_CAMERA
     observation_width: int = 84
     observation_height: int = 84
-    num_points: int = 512
     # 'vil_camera' sees the hand from afar: at 84x84 the hammer scene leaves only ~270 pixels in the workspace
     # (fewer than 512 distinct points); 192x192 gives >= 512 for all three tasks at 12-28 ms CPU per cloud.
     depth_width: int = ADROIT_DEPTH_SIZE
@@ -72,16 +65,11 @@ class FocalAdroitEnvConfig(EnvConfig):
     workspace_low: tuple[float, float, float] = DEFAULT_ADROIT_WORKSPACE_LOW
     workspace_high: tuple[float, float, float] = DEFAULT_ADROIT_WORKSPACE_HIGH
     terminate_on_success: bool = True
-    # Voxel grid (m) applied before FPS for speed; 0 = exact DP3 recipe (FPS over all cropped points).
-    # Exact DP3 FPS: the cropped clouds are small here, and a 1 cm grid would merge the pen and fingers.
+    # Exact DP3 FPS (no voxel grid): the cropped clouds are small here, and a 1 cm grid would merge the pen
+    # and the fingers.
     voxel_size: float = 0.0
-    raycast_threads: int | None = None
-    # Append one JSON line per finished episode (task, seed, success, length, action_total_variation) here.
-    metrics_path: str | None = None
-    # Shadows and reflections off in RGB frames: ~8x faster with software OpenGL (pixels obs and eval videos).
-    cheap_rendering: bool = True
-    features: dict[str, PolicyFeature] = field(default_factory=dict)
-    features_map: dict[str, str] = field(default_factory=env_features_map)
+
+    EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("terminate_on_success",)
 
     def __post_init__(self) -> None:
         check_obs_type(self.obs_type)
@@ -98,48 +86,13 @@ class FocalAdroitEnvConfig(EnvConfig):
             image_hw=(self.observation_height, self.observation_width),
         )
 
-    @property
-    def gym_kwargs(self) -> dict[str, Any]:
-        return {
-            "obs_type": self.obs_type,
-            "episode_length": self.episode_length,
-            "camera_name": self.camera_name,
-            "observation_width": self.observation_width,
-            "observation_height": self.observation_height,
-            "num_points": self.num_points,
-            "depth_width": self.depth_width,
-            "depth_height": self.depth_height,
-            "workspace_low": tuple(self.workspace_low),
-            "workspace_high": tuple(self.workspace_high),
-            "terminate_on_success": self.terminate_on_success,
-            "voxel_size": self.voxel_size,
-            "raycast_threads": self.raycast_threads,
-            "metrics_path": self.metrics_path,
-            "cheap_rendering": self.cheap_rendering,
-        }
+    def task_groups(self) -> dict[str, list[str]]:
+        return {name: [name] for name in self.tasks}
 
-    def make_single_env(self, task: str | None = None) -> FocalAdroitEnv:
+    def env_class(self) -> type[FocalAdroitEnv]:
         from .adroit_env import FocalAdroitEnv
 
-        name = _canonical_task(task) if task else self.tasks[0]
-        return FocalAdroitEnv(task=name, **self.gym_kwargs)
+        return FocalAdroitEnv
 
-    def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
-        if not isinstance(n_envs, int) or n_envs <= 0:
-            raise ValueError(f"n_envs must be a positive int; got {n_envs}")
-        from lerobot.envs.utils import freeze_after_episode_end
-
-        from .adroit_env import FocalAdroitEnv
-
-        env_cls = _make_vec_env_cls(use_async_envs, n_envs)
-        kwargs = self.gym_kwargs
-        extra = {"context": "forkserver"} if env_cls is gym.vector.AsyncVectorEnv else {}
-        out: dict[str, dict[int, gym.vector.VectorEnv]] = {}
-        for name in self.tasks:
-            fns = [freeze_after_episode_end(lambda tn=name: FocalAdroitEnv(task=tn, **kwargs)) for _ in range(n_envs)]
-            out[name] = {0: env_cls(fns, **extra)}
-        return out
-
-    def get_env_processors(self):
-        steps = [PointCloudObservationStep(num_points=self.num_points)] if uses_pointcloud(self.obs_type) else []
-        return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
+    def canonical_task(self, task: str) -> str:
+        return _canonical_task(task)

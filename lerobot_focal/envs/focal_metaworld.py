@@ -3,27 +3,14 @@
 from __future__ import annotations
 
 import json
-from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import resources
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
-import gymnasium as gym
+from lerobot.envs.configs import EnvConfig
 
-from lerobot.configs import PolicyFeature
-from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
-from lerobot.processor import PolicyProcessorPipeline
-
-from .common import (
-    DEFAULT_VOXEL_SIZE,
-    check_obs_type,
-    env_features,
-    env_features_map,
-    resolve_names,
-    uses_pixels,
-    uses_pointcloud,
-)
-from .processor import PointCloudObservationStep
+from .base import FocalSimEnvConfig
+from .features import DEFAULT_VOXEL_SIZE, check_obs_type, env_features, resolve_names, uses_pixels
 
 if TYPE_CHECKING:  # the env module imports metaworld and mujoco: only load it when an env is built
     from .metaworld_env import FocalMetaworldEnv
@@ -74,43 +61,28 @@ def resolve_metaworld_tasks(task: str) -> dict[str, list[str]]:
 
 @EnvConfig.register_subclass("focal_metaworld")
 @dataclass
-class FocalMetaworldEnvConfig(EnvConfig):
+class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     """``task``: a v3 task, a difficulty group (easy, medium, hard, very_hard) or a comma-separated mix."""
 
     task: str = "pick-place-v3"
     # MetaWorld's control rate: frame_skip 5 x timestep 2.5 ms.
     fps: int = 80
-    # DP3/FocalPolicy episodes are 200 env steps.
-    episode_length: int = 200
-    obs_type: str = "pointcloud"
     # Also emit MetaWorld's 39-d observation (object poses) as observation.environment_state. It is what
     # LeRobot's `diffusion` needs without images, so the CPU benchmark gives every method the same input.
     env_state: bool = False
     render_mode: str = "rgb_array"
     camera_name: str = "corner2"
     camera_pos: tuple[float, float, float] | None = DP3_CORNER2_POS
-    observation_width: int = 128
-    observation_height: int = 128
-    num_points: int = 512
-    depth_width: int = 128
-    depth_height: int = 128
     workspace_low: tuple[float, float, float] = DEFAULT_WORKSPACE_LOW
     workspace_high: tuple[float, float, float] = DEFAULT_WORKSPACE_HIGH
-    # Voxel grid (m) applied before FPS for speed; 0 = exact DP3 recipe (FPS over all cropped points).
     voxel_size: float = DEFAULT_VOXEL_SIZE
-    # Threads per env for ray casting (None = 1, the fastest here with 2 busy cores).
-    raycast_threads: int | None = None
-    # Append one JSON line per finished episode (task, seed, success, length, action_total_variation) here.
-    metrics_path: str | None = None
-    # Shadows and reflections off in RGB frames: ~8x faster with software OpenGL (pixels obs and eval videos).
-    cheap_rendering: bool = True
     # False: render() (videos only, never observations) returns a blank 16x16 frame. `lerobot-train` renders
     # every env of 4 evaluation episodes to video at each evaluation (hard-coded); with software OpenGL that was
-    # ~70 % of a benchmark run's time here. The benchmark grid turns it off; simulation and metrics are unchanged.
+    # ~70 % of a benchmark run's time. The benchmark grid turns it off; simulation and metrics are unchanged.
     render_videos: bool = True
     multitask_eval: bool = True
-    features: dict[str, PolicyFeature] = field(default_factory=dict)
-    features_map: dict[str, str] = field(default_factory=env_features_map)
+
+    EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("env_state", "camera_pos", "render_videos")
 
     def __post_init__(self) -> None:
         check_obs_type(self.obs_type)
@@ -129,62 +101,14 @@ class FocalMetaworldEnvConfig(EnvConfig):
             env_state_dim=METAWORLD_ENV_STATE_DIM if self.env_state else None,
         )
 
-    @property
-    def gym_kwargs(self) -> dict[str, Any]:
-        return {
-            "obs_type": self.obs_type,
-            "env_state": self.env_state,
-            "camera_name": self.camera_name,
-            "camera_pos": self.camera_pos,
-            "episode_length": self.episode_length,
-            "observation_width": self.observation_width,
-            "observation_height": self.observation_height,
-            "num_points": self.num_points,
-            "depth_width": self.depth_width,
-            "depth_height": self.depth_height,
-            "workspace_low": tuple(self.workspace_low),
-            "workspace_high": tuple(self.workspace_high),
-            "voxel_size": self.voxel_size,
-            "raycast_threads": self.raycast_threads,
-            "metrics_path": self.metrics_path,
-            "cheap_rendering": self.cheap_rendering,
-            "render_videos": self.render_videos,
-        }
+    def task_groups(self) -> dict[str, list[str]]:
+        return self.tasks_by_group
 
-    def make_single_env(self, task: str | None = None) -> FocalMetaworldEnv:
-        """One un-vectorised env (for data collection and tests); default: the first configured task."""
+    def env_class(self) -> type[FocalMetaworldEnv]:
         from .metaworld_env import FocalMetaworldEnv
 
-        if task is None:
-            task = next(iter(self.tasks_by_group.values()))[0]
+        return FocalMetaworldEnv
+
+    def canonical_task(self, task: str) -> str:
         (name,) = resolve_names(_canonical_task(task), METAWORLD_TASKS, {}, "MetaWorld task")
-        return FocalMetaworldEnv(task=name, **self.gym_kwargs)
-
-    def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
-        """Same {group: {task_id: VectorEnv}} layout as LeRobot's ``create_metaworld_envs``."""
-        if not isinstance(n_envs, int) or n_envs <= 0:
-            raise ValueError(f"n_envs must be a positive int; got {n_envs}")
-        from lerobot.envs.utils import _LazyAsyncVectorEnv, freeze_after_episode_end
-
-        from .metaworld_env import FocalMetaworldEnv
-
-        env_cls = _make_vec_env_cls(use_async_envs, n_envs)
-        kwargs = self.gym_kwargs
-        out: dict[str, dict[int, Any]] = defaultdict(dict)
-        cached: tuple | None = None
-        for group, tasks in self.tasks_by_group.items():
-            for tid, name in enumerate(tasks):
-                fns = [(lambda tn=name: FocalMetaworldEnv(task=tn, **kwargs)) for _ in range(n_envs)]
-                if env_cls is gym.vector.AsyncVectorEnv:
-                    # LeRobot's lazy async env (one task's workers alive at a time) adds the freeze wrapper.
-                    lazy = _LazyAsyncVectorEnv(fns, *(cached or (None, None, None)))
-                    cached = cached or (lazy.observation_space, lazy.action_space, lazy.metadata)
-                    out[group][tid] = lazy
-                else:
-                    # Stop simulating a finished sub-env (and its autoreset) until lerobot-eval's next rollout.
-                    out[group][tid] = env_cls([freeze_after_episode_end(fn) for fn in fns])
-        return {group: dict(task_map) for group, task_map in out.items()}
-
-    def get_env_processors(self):
-        steps = [PointCloudObservationStep(num_points=self.num_points)] if uses_pointcloud(self.obs_type) else []
-        return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
+        return name

@@ -3,14 +3,16 @@
 Built on LeRobot's ``MetaworldEnv`` so that seeding, task descriptions, the scripted expert
 (``expert_policy``), success reporting (``info["is_success"]``, terminate on first success, ``final_info``)
 and ``lerobot-eval``'s expectations stay exactly LeRobot's; only env construction and observation
-formatting differ.
+formatting differ. Those two are LeRobot's private hooks ``_ensure_env`` and ``_format_raw_obs`` (and
+MetaWorld's ``_freeze_rand_vec``): overriding them is what keeps the rest LeRobot's instead of a copy.
+`tests/envs/test_registration.py` fails loudly if LeRobot stops calling them from ``reset``.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from .common import ensure_offscreen_gl
+from lerobot_focal.sim.rendering import ensure_offscreen_gl
 
 # Before MuJoCo is imported (it binds its OpenGL backend then): lerobot-eval renders videos of every obs type.
 ensure_offscreen_gl()
@@ -22,12 +24,15 @@ from gymnasium import spaces
 
 from lerobot.envs.metaworld import MetaworldEnv
 
-from .common import (
+from lerobot_focal.geometry.pointcloud import PointCloudSpec, WorkspaceBounds
+from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
+from lerobot_focal.sim.rendering import make_rendering_cheap
+
+from .episode_metrics import EpisodeMetrics
+from .features import (
     AGENT_POS_KEY,
     DEFAULT_VOXEL_SIZE,
     ENV_STATE_KEY,
-    EpisodeMetrics,
-    make_rendering_cheap,
     PIXELS_KEY,
     POINTCLOUD_KEY,
     check_obs_type,
@@ -42,8 +47,6 @@ from .focal_metaworld import (
     METAWORLD_ENV_STATE_DIM,
     METAWORLD_STATE_DIM,
 )
-from .pointcloud import PointCloudSpec, WorkspaceBounds
-from .raycast_camera import RayCastPointCloudSensor
 
 
 class FocalMetaworldEnv(MetaworldEnv):

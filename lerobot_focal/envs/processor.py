@@ -17,7 +17,9 @@ import torch
 from lerobot.configs import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
 
-from .common import OBS_POINTCLOUD, POINTCLOUD_KEY
+from lerobot_focal.constants import OBS_POINTCLOUD
+
+from .features import POINTCLOUD_KEY
 
 
 @dataclass

@@ -22,12 +22,12 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
-OBS_POINTCLOUD = "observation.pointcloud"
 
 # The method switches an ablation may set, with the paper's values. In the dataclass they default to None,
 # meaning "not given": `__post_init__` fills them from the ablation, else from here. So a switch given on the
@@ -210,7 +210,7 @@ class FocalConfig(PreTrainedConfig):
     # Point cloud from a stored depth map (robots such as `ur10e` record `observation.images.<cam>_depth`, since
     # LeRobot 0.6.1 cannot record a point cloud). Naming a depth key here adds `pointcloud_key` (P, 3) to the
     # input features and a `focal_depth_to_pointcloud` step to the preprocessor: back-projection → crop →
-    # farthest point sampling with `lerobot_focal.envs.pointcloud`, identical at training (decoded depth video)
+    # farthest point sampling with `lerobot_focal.geometry.pointcloud`, identical at training (decoded depth video)
     # and at rollout (the robot's raw uint16 frame). The camera info and crop are stored in the saved step.
     pointcloud_from_depth: str | None = None  # e.g. "observation.images.front_depth"
     # cameras.json written by the robot on connect ($HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json);

@@ -16,7 +16,7 @@ reloads with correct stats and needs no custom step.
 Point clouds from depth (`FocalConfig.pointcloud_from_depth`, for robots such as `ur10e` that record
 `observation.images.<cam>_depth` because LeRobot 0.6.1 cannot record a point cloud): the registered step
 `focal_depth_to_pointcloud` (:class:`DepthToPointCloudProcessorStep`) runs after "add batch dim" and turns the
-depth frame into `observation.pointcloud` with the simulation's own `lerobot_focal.envs.pointcloud` code. Its
+depth frame into `observation.pointcloud` with the simulation's own `lerobot_focal.geometry.pointcloud` code. Its
 config (camera intrinsics + extrinsics, crop box, size, units) is saved in `policy_preprocessor.json`, so
 `lerobot-rollout --policy.path=…` rebuilds the identical step. The cloud's normalisation statistics are the
 crop box (MIN_MAX over a box every point lies in; see :func:`crop_box_stats`).
@@ -44,7 +44,8 @@ from lerobot.processor import (
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION
 
-from lerobot_focal.policy.configuration_focal import OBS_POINTCLOUD, FocalConfig
+from lerobot_focal.constants import OBS_POINTCLOUD
+from lerobot_focal.policy.configuration_focal import FocalConfig
 from lerobot_focal.policy.input_checks import FocalInputShapeStep, check_dataset_stats
 
 logger = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ _CAMERA_INFO_KEYS = ("width", "height", "fx", "fy", "cx", "cy", "T_base_cam")
 class DepthToPointCloudProcessorStep(ObservationProcessorStep):
     """Depth map → (num_points, 3) base-frame point cloud: back-projection → crop → (voxel grid) → FPS.
 
-    The same functions as the simulated benchmarks (`lerobot_focal.envs.pointcloud.depth_to_pointcloud`), for
+    The same functions as the simulated benchmarks (`lerobot_focal.geometry.pointcloud.depth_to_pointcloud`), for
     every form a depth frame reaches a policy preprocessor in:
 
     * live, from `lerobot-rollout`: the robot's raw frame, an integer (uint16) tensor (B, 1, H, W) (or (H, W),
@@ -88,7 +89,7 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
     min_depth: float = 0.05
 
     def __post_init__(self) -> None:
-        from lerobot_focal.envs.pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds
+        from lerobot_focal.geometry.pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds
 
         missing = [k for k in _CAMERA_INFO_KEYS if k not in self.camera_info]
         if missing:
@@ -175,7 +176,7 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
         return clouds.reshape(*lead, self._spec.num_points, 3)
 
     def _one(self, frame: np.ndarray, scale: float) -> np.ndarray:
-        from lerobot_focal.envs.pointcloud import depth_to_pointcloud
+        from lerobot_focal.geometry.pointcloud import depth_to_pointcloud
 
         metres = frame.astype(np.float64) * scale
         metres[metres < self.min_depth] = 0.0

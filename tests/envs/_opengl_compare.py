@@ -13,8 +13,8 @@ from scipy.spatial import cKDTree
 
 from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
 from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
-from lerobot_focal.envs.pointcloud import backproject_depth, crop_to_workspace, depth_to_pointcloud
-from lerobot_focal.envs.raycast_camera import RayCastDepthCamera
+from lerobot_focal.geometry.pointcloud import backproject_depth, crop_to_workspace, depth_to_pointcloud
+from lerobot_focal.sim.raycast_camera import RayCastDepthCamera
 
 
 def gl_depth(renderer: mujoco.Renderer, model, data, camera: str) -> np.ndarray:

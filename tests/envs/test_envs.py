@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from lerobot_focal.envs.common import OBS_TYPES, action_total_variation
+from lerobot_focal.envs.episode_metrics import action_total_variation
+from lerobot_focal.envs.features import OBS_TYPES
 
 pytest.importorskip("metaworld")
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_focal.envs.pointcloud import (
+from lerobot_focal.geometry.pointcloud import (
     PinholeIntrinsics,
     WorkspaceBounds,
     backproject_depth,
@@ -41,6 +41,31 @@ def test_farthest_point_sample_matches_reference():
     few = farthest_point_sample(pts[:5], 12)
     assert few.shape == (12, 3) and len(np.unique(few, axis=0)) == 5
     assert farthest_point_sample(np.zeros((0, 3)), 4).shape == (4, 3)
+
+
+def _covering_radius(points: np.ndarray, samples: np.ndarray) -> float:
+    """The largest distance from any point to its nearest sample (how well the samples cover the cloud)."""
+    from scipy.spatial import cKDTree
+
+    return float(cKDTree(samples).query(points)[0].max())
+
+
+def test_bucket_fps_on_large_clouds_covers_as_well_as_exact_fps():
+    """Large frames use fpsample's bucket FPS: not the same points as the exact loop, but the same coverage;
+    and the same input gives the same cloud."""
+    pytest.importorskip("fpsample")
+    rng = np.random.default_rng(2)
+    # A table-top-like frame: a dense plane plus a few objects, 60 k points.
+    plane = np.c_[rng.uniform(-0.5, 0.5, (50_000, 2)), rng.normal(0, 0.002, 50_000)]
+    boxes = np.concatenate([rng.uniform(np.array(c) - 0.05, np.array(c) + 0.05, (3_000, 3)) for c in ([0.1, 0.2, 0.05],
+                            [-0.2, -0.1, 0.08], [0.3, -0.3, 0.1], [0.0, 0.0, 0.2])])
+    pts = np.concatenate([plane, boxes]).astype(np.float32)
+    fast = farthest_point_sample(pts, 512)
+    exact = farthest_point_sample(pts, 512, exact=True)
+    assert fast.shape == (512, 3) and len(np.unique(fast, axis=0)) == 512
+    assert not np.array_equal(fast, exact)  # the bucket path really ran
+    assert _covering_radius(pts, fast) <= 1.15 * _covering_radius(pts, exact)
+    np.testing.assert_array_equal(fast, farthest_point_sample(pts, 512))  # deterministic
 
 
 def test_backprojection_inverts_projection():

@@ -3,6 +3,7 @@
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 
@@ -43,3 +44,50 @@ def test_adroit_config_action_dims():
     assert FocalAdroitEnvConfig(task="AdroitHandPen-v1", obs_type="state").features["action"].shape == (24,)
     with pytest.raises(ValueError, match="different action sizes"):
         FocalAdroitEnvConfig(task="all")
+
+
+def test_lerobots_lazy_async_vector_env_is_what_the_envs_expect():
+    """Async evaluation uses LeRobot's private `_LazyAsyncVectorEnv` (lerobot_focal/envs/vector.py says why). If
+    LeRobot renames it or changes its constructor or laziness, this fails here, not in a user's lerobot-eval."""
+    import inspect
+
+    pytest.importorskip("metaworld")
+    from lerobot.envs.utils import _LazyAsyncVectorEnv
+
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    params = list(inspect.signature(_LazyAsyncVectorEnv.__init__).parameters)
+    assert params[:5] == ["self", "env_fns", "observation_space", "action_space", "metadata"], params
+    envs = FocalMetaworldEnvConfig(task="reach,push", obs_type="state").create_envs(2, use_async_envs=True)
+    reach, push = envs["reach-v3"][0], envs["push-v3"][0]
+    assert isinstance(reach, _LazyAsyncVectorEnv) and reach._env is None and push._env is None  # no workers yet
+    assert push.observation_space == reach.observation_space  # the second task reused the first one's spaces
+    try:
+        obs, _ = reach.reset(seed=[0, 1])
+        assert obs["agent_pos"].shape == (2, 9) and push._env is None
+    finally:
+        reach.close()
+        push.close()
+
+
+def test_lerobots_metaworld_env_still_calls_the_hooks_focal_overrides():
+    """FocalMetaworldEnv overrides LeRobot's private `_ensure_env` / `_format_raw_obs`; if LeRobot's reset stops
+    calling them, our observations would silently be LeRobot's. This fails first."""
+    import inspect
+
+    pytest.importorskip("metaworld")
+    from lerobot.envs.metaworld import MetaworldEnv
+
+    reset = inspect.getsource(MetaworldEnv.reset)
+    assert "self._ensure_env()" in reset and "self._format_raw_obs(" in reset
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    env = FocalMetaworldEnvConfig(task="push", obs_type="state", env_state=True).make_single_env()
+    try:
+        a, _ = env.reset(seed=0)
+        b, _ = env.reset(seed=1)
+        assert set(a) == {"agent_pos", "environment_state"}  # our formatting, not LeRobot's
+        # MetaWorld's _freeze_rand_vec is off: the seed moves the object.
+        assert not np.allclose(a["environment_state"][4:7], b["environment_state"][4:7])
+    finally:
+        env.close()

@@ -2,7 +2,7 @@
 
 * top-k score: mean of the k best evaluations of a run (paper: k = 5), then mean ± std over seeds;
 * evaluation curve: LeRobot's evaluation episodes grouped back into evaluations (see ``eval_curve``);
-* ATV: ``lerobot_focal.envs.common.action_total_variation``, recorded by the env for every executed episode;
+* ATV: ``lerobot_focal.envs.episode_metrics.action_total_variation``, recorded by the env for every executed episode;
 * TS score: |TS(expert) − TS(policy)| on the same held-out episodes. The paper takes TS from CoLA, whose exact
   formula is not in our references; we use the mean second difference ‖a_{t+1} − 2a_t + a_{t−1}‖₂ of the
   action sequence (a smoothness measure of the same kind) and say so in every report;

@@ -61,10 +61,10 @@ def depth_to_pointcloud(
     """(num_points, 3) float32 point cloud in the robot base frame from a depth map in `info.depth_scale` units.
 
     The one place the robot turns depth into points: it delegates to the project's shared implementation
-    (`lerobot_focal.envs.pointcloud`, same conventions) so simulation, datasets and the real arm use the same
+    (`lerobot_focal.geometry.pointcloud`, same conventions) so simulation, datasets and the real arm use the same
     code path.
     """
-    from lerobot_focal.envs.pointcloud import (
+    from lerobot_focal.geometry.pointcloud import (
         PinholeIntrinsics,
         PointCloudSpec,
         WorkspaceBounds,

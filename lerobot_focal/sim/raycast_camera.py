@@ -19,7 +19,7 @@ the tricks below, a whole 512-point cloud in about 28 ms on one core of a 2-core
 * ``mj_multiRay`` allocates scratch memory on ``mjData``'s stack, so rays are cast against scratch
   ``mjData`` copies holding the poses it reads (``geom_xpos``, ``geom_xmat`` and the body ``xipos`` its
   bounding-sphere test uses), never the simulation's ``mjData``. Optional worker threads split the rays
-  (mj_multiRay releases the GIL); the default is one thread, fastest on a loaded 2-core machine.
+  (mj_multiRay releases the GIL); the default is one thread, the fastest when the other cores are busy.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from .pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds, depth_to_pointcloud
+from lerobot_focal.geometry.pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds, depth_to_pointcloud
 
 #: MuJoCo's default ``mjvOption.geomgroup``: what an OpenGL render of the scene shows.
 RENDERED_GEOM_GROUPS: tuple[int, ...] = (1, 1, 1, 0, 0, 0)

@@ -1,6 +1,6 @@
 """Point-cloud observations per second, end to end (ray cast + back-project + crop + voxel + FPS).
 
-    python -m lerobot_focal.envs.bench_pointcloud [--task pick-place-v3] [--frames 30] [--runs 5]
+    python -m lerobot_focal.benchmarks.pointcloud_rate [--task pick-place-v3] [--frames 30] [--runs 5]
 
 Frames are taken at distinct states of a random-action rollout (the arm moves, so every frame is new work);
 the env's own physics step is excluded. Prints the median over runs, for each setting measured.
@@ -15,9 +15,9 @@ import time
 import mujoco
 import numpy as np
 
-from .metaworld_env import FocalMetaworldEnv
-from .pointcloud import PointCloudSpec
-from .raycast_camera import RayCastPointCloudSensor
+from lerobot_focal.envs.metaworld_env import FocalMetaworldEnv
+from lerobot_focal.geometry.pointcloud import PointCloudSpec
+from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
 
 
 def _record_states(env: FocalMetaworldEnv, frames: int, seed: int) -> list[np.ndarray]:

@@ -119,14 +119,21 @@ def crop_to_workspace(points: np.ndarray, bounds: WorkspaceBounds | None) -> np.
     return points[bounds.contains(points[:, :3])]
 
 
-def farthest_point_sample(points: np.ndarray, num_points: int, start_index: int = 0) -> np.ndarray:
-    """Deterministic farthest-point sampling to exactly ``num_points`` rows.
+#: Above this many candidate points, sampling uses the `fpsample` package's bucket FPS (a kd-tree of buckets,
+#: O(n log n)) when it is installed: ~4x faster than the exact loop at 50-150 k points (a 848x480 depth frame),
+#: with the same coverage (tests/envs/test_pointcloud.py). Below it the exact loop is as fast and bit-stable.
+BUCKET_FPS_MIN_POINTS = 8192
+
+
+def farthest_point_sample(points: np.ndarray, num_points: int, start_index: int = 0, exact: bool | None = None) -> np.ndarray:
+    """Farthest-point sampling to exactly ``num_points`` rows, deterministic for a given input.
 
     Starts at ``start_index`` (DP3 starts at the first point too, so equal inputs give equal clouds).
     Extra columns (e.g. rgb) ride along; distances use xyz only. With fewer input points than asked, the
     sampled points are repeated cyclically rather than zero-padded as DP3 does: a max-pooling encoder is
     blind to duplicates, while a padded (0, 0, 0) would be a fake surface at the world origin. An empty
-    input gives zeros, the only option left.
+    input gives zeros, the only option left. ``exact``: True forces the exact loop, False the bucket FPS,
+    None (default) picks by size (``BUCKET_FPS_MIN_POINTS``).
     """
     if num_points <= 0:
         raise ValueError(f"num_points must be positive, got {num_points}")
@@ -140,12 +147,29 @@ def farthest_point_sample(points: np.ndarray, num_points: int, start_index: int 
         return points[np.resize(np.arange(n), num_points)]
     if not 0 <= start_index < n:
         raise ValueError(f"start_index {start_index} out of range for {n} points")
+    xyz = np.ascontiguousarray(points[:, :3], dtype=np.float32)
+    if exact is False or (exact is None and n >= BUCKET_FPS_MIN_POINTS):
+        chosen = _bucket_fps(xyz, num_points, start_index)
+        if chosen is not None:
+            return points[chosen]
+    return points[_exact_fps(xyz, num_points, start_index)]
 
+
+def _bucket_fps(xyz: np.ndarray, num_points: int, start_index: int) -> np.ndarray | None:
+    try:
+        import fpsample
+    except ImportError:  # optional (the sim / robot extras install it): fall back to the exact loop
+        return None
+    height = 5 if xyz.shape[0] < 50_000 else 7  # fpsample's advice: taller bucket trees for larger clouds
+    return np.asarray(fpsample.bucket_fps_kdline_sampling(xyz, num_points, h=height, start_idx=start_index))
+
+
+def _exact_fps(xyz: np.ndarray, num_points: int, start_index: int) -> np.ndarray:
     # Squared distances as |p|^2 - 2 p.c + |c|^2: per iteration one BLAS mat-vec plus three in-place
     # element-wise calls. Python call overhead, not arithmetic, bounds pure-numpy FPS, so the fewer calls per
     # iteration the better. float32 cancellation costs ~1e-7 m^2 here (coordinates ~1 m): far below the
     # spacing of 512 samples, and the selection stays deterministic.
-    xyz = np.ascontiguousarray(points[:, :3], dtype=np.float32)
+    n = xyz.shape[0]
     sq_norm = np.einsum("ij,ij->i", xyz, xyz)
     d2 = np.empty(n, dtype=np.float32)
     min_d2 = np.full(n, np.inf, dtype=np.float32)
@@ -157,7 +181,7 @@ def farthest_point_sample(points: np.ndarray, num_points: int, start_index: int 
         d2 += sq_norm + sq_norm[current]
         np.minimum(min_d2, d2, out=min_d2)
         current = int(min_d2.argmax())
-    return points[chosen]
+    return chosen
 
 
 def voxel_downsample(points: np.ndarray, voxel_size: float) -> np.ndarray:
