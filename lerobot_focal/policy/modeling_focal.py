@@ -25,6 +25,7 @@ from lerobot_focal.policy.configuration_focal import FocalConfig
 from lerobot_focal.policy.encoders import ObservationEncoder
 from lerobot_focal.policy.network import VelocityUnet
 from lerobot_focal.policy.objective import consistency_loss
+from lerobot_focal.policy.stats import adapt_dataset_stats
 from lerobot_focal.policy.time_samplers import sample_times
 
 
@@ -77,9 +78,17 @@ class FocalPolicy(PreTrainedPolicy):
     config_class = FocalConfig
     name = "focal"
 
-    def __init__(self, config: FocalConfig, **kwargs):
-        # kwargs: make_policy passes dataset_stats= and dataset_meta=; normalisation lives in the processors.
+    def __init__(self, config: FocalConfig, dataset_stats: dict | None = None, **kwargs):
+        # kwargs: make_policy also passes dataset_meta=; normalisation lives in the processors.
         super().__init__(config)
+        if dataset_stats is not None:
+            # Fine-tuning from a checkpoint (`lerobot-train --policy.path=...`), LeRobot hands this very dict to
+            # the saved normaliser as its new statistics, bypassing the processor factory: adapt it in place so
+            # the normaliser gets what focal needs (per-channel / crop-box cloud stats, constant dimensions at
+            # unit scale). Idempotent, so the factory applying it again changes nothing.
+            adapted = adapt_dataset_stats(config, dataset_stats)
+            dataset_stats.clear()
+            dataset_stats.update(adapted)
         config.validate_features()
         self.config = config
         self.model = FocalModel(config)
