@@ -98,7 +98,7 @@ class FocalConfig(PreTrainedConfig):
             the supervised proximal chunk is always real data (the rest of L repeats the last action).
         normalization_mapping: LeRobot normalisation mode per feature type. A point cloud is a STATE feature
             (MIN_MAX per xyz channel, DP3's limits); ENV (object poses) is MIN_MAX too; dimensions that are
-            constant in the data keep a unit scale (see `processor_focal.widen_degenerate_min_max`).
+            constant in the data keep a unit scale (see `stats.widen_degenerate_min_max`).
         pointcloud_key: Observation key of the point cloud, (P, 3) or (P, 6) with colour.
         use_pointcloud: Read the point cloud when the dataset has one.
         use_pointcloud_color: Use xyz+rgb when the cloud has 6 channels (xyz only otherwise).
@@ -196,7 +196,7 @@ class FocalConfig(PreTrainedConfig):
             "VISUAL": NormalizationMode.MEAN_STD,
             "STATE": NormalizationMode.MIN_MAX,
             # observation.environment_state (object poses); dimensions constant in the demos keep a unit scale
-            # (see processor_focal.widen_degenerate_min_max).
+            # (see stats.widen_degenerate_min_max).
             "ENV": NormalizationMode.MIN_MAX,
             "ACTION": NormalizationMode.MIN_MAX,
         }

@@ -1,351 +1,32 @@
-"""Pre/post-processing pipelines for `focal`: LeRobot's standard policy pipeline plus per-channel point-cloud stats.
+"""Pre/post-processing pipelines for `focal`: LeRobot's standard policy pipeline, `focal`'s statistics.
 
-Pre:  rename → add batch dim → device → normalise (used inputs + action).   Post: unnormalise action → cpu.
+Pre:  rename → add batch dim → (depth → point cloud) → device → shape check → normalise (used inputs + action).
+Post: unnormalise action → cpu.
 
 Only the observations the policy reads are normalised. A robot or dataset may carry more (a uint16 depth
 map, joint velocities), and LeRobot's default normaliser would touch every input feature — a uint16 depth
-frame then fails to convert ("value cannot be converted to type uint16 without overflow").
-
-Point clouds: LeRobot has no point-cloud feature type, so `observation.pointcloud` is a STATE feature and is
-MIN_MAX-normalised per xyz channel (DP3's "limits" normaliser). Stats written by LeRobot 0.6.1 for a (P, 3)
-feature are already per channel, shape (3,); stats computed elsewhere can be per point slot, shape (P, 3),
-which is meaningless after farthest-point sampling (slot i holds a different point every frame). Such stats
-are pooled to per channel here, before they are stored in the normaliser step — so the saved pipeline
-reloads with correct stats and needs no custom step.
-
-Point clouds from depth (`FocalConfig.pointcloud_from_depth`, for robots such as `ur10e` that record
-`observation.images.<cam>_depth` because LeRobot 0.6.1 cannot record a point cloud): the registered step
-`focal_depth_to_pointcloud` (:class:`DepthToPointCloudProcessorStep`) runs after "add batch dim" and turns the
-depth frame into `observation.pointcloud` with the simulation's own `lerobot_focal.geometry.pointcloud` code. Its
-config (camera intrinsics + extrinsics, crop box, size, units) is saved in `policy_preprocessor.json`, so
-`lerobot-rollout --policy.path=…` rebuilds the identical step. The cloud's normalisation statistics are the
-crop box (MIN_MAX over a box every point lies in; see :func:`crop_box_stats`).
+frame then fails to convert ("value cannot be converted to type uint16 without overflow"). The statistics are
+`lerobot_focal.policy.stats.adapt_dataset_stats` of the dataset's; the depth step is
+`lerobot_focal.policy.depth_pointcloud_step`.
 """
 
 from __future__ import annotations
 
-import json
-import logging
-import time
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from lerobot.configs.types import FeatureType, PipelineFeatureType, PolicyFeature
-from lerobot.processor import (
-    NormalizerProcessorStep,
-    ObservationProcessorStep,
-    PolicyAction,
-    PolicyProcessorPipeline,
-    ProcessorStepRegistry,
-)
+from lerobot.processor import NormalizerProcessorStep, PolicyAction, PolicyProcessorPipeline
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION
 
-from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.policy.configuration_focal import FocalConfig
+from lerobot_focal.policy.depth_pointcloud_step import (  # noqa: F401  (re-exported: the step's public home)
+    DEPTH_TO_POINTCLOUD_STEP,
+    DepthToPointCloudProcessorStep,
+    make_depth_to_pointcloud_step,
+)
 from lerobot_focal.policy.input_checks import FocalInputShapeStep, check_dataset_stats
-
-logger = logging.getLogger(__name__)
-
-DEPTH_TO_POINTCLOUD_STEP = "focal_depth_to_pointcloud"
-_CAMERA_INFO_KEYS = ("width", "height", "fx", "fy", "cx", "cy", "T_base_cam")
-
-
-@ProcessorStepRegistry.register(DEPTH_TO_POINTCLOUD_STEP)
-@dataclass
-class DepthToPointCloudProcessorStep(ObservationProcessorStep):
-    """Depth map → (num_points, 3) base-frame point cloud: back-projection → crop → (voxel grid) → FPS.
-
-    The same functions as the simulated benchmarks (`lerobot_focal.geometry.pointcloud.depth_to_pointcloud`), for
-    every form a depth frame reaches a policy preprocessor in:
-
-    * live, from `lerobot-rollout`: the robot's raw frame, an integer (uint16) tensor (B, 1, H, W) (or (H, W),
-      (H, W, 1), (1, H, W), …) in sensor units; metres = value × ``camera_info["depth_scale"]`` (0.001: mm);
-    * from a dataset during `lerobot-train`: LeRobot's decoded depth video, float32 (B, n_obs, 1, H, W) in
-      ``float_depth_unit`` ("mm", LeRobot's default; "m" with `--dataset.depth_output_unit=m`). LeRobot stores
-      the raw frame as its "mm", so "mm" floats are scaled like raw integers.
-
-    Leading (batch, time) dimensions are kept: the output is float32 ``(*lead, num_points, 3)`` on the input's
-    device. The depth key stays in the observation (the policy ignores it).
-
-    ``camera_info`` is the robot's `cameras.json` entry (`lerobot_focal.robots.ur10e.camera_info.CameraInfo`):
-    width, height, fx, fy, cx, cy of the depth image, ``T_base_cam`` (4×4, OpenCV optical frame in the robot
-    base frame) and ``depth_scale``.
-    """
-
-    depth_key: str = "observation.images.front_depth"
-    pointcloud_key: str = OBS_POINTCLOUD
-    camera_info: dict[str, Any] = field(default_factory=dict)
-    crop_min: list[float] = field(default_factory=lambda: [-1.0, -1.0, -1.0])
-    crop_max: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
-    num_points: int = 512
-    voxel_size: float = 0.0
-    float_depth_unit: str = "mm"
-    # Depths below this (metres) count as "no return". LeRobot's depth codec decodes a 0 (no return) as its
-    # depth_min, 10 mm by default, while the live frame has 0: without this the two would differ.
-    min_depth: float = 0.05
-
-    def __post_init__(self) -> None:
-        from lerobot_focal.geometry.pointcloud import PinholeIntrinsics, PointCloudSpec, WorkspaceBounds
-
-        missing = [k for k in _CAMERA_INFO_KEYS if k not in self.camera_info]
-        if missing:
-            raise ValueError(
-                f"{DEPTH_TO_POINTCLOUD_STEP}: camera_info for '{self.depth_key}' lacks {missing}. It must be one "
-                "camera's entry of the cameras.json the ur10e robot writes on connect "
-                "($HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json): width, height, fx, fy, cx, cy, "
-                "T_base_cam (4x4) and depth_scale."
-            )
-        if self.float_depth_unit not in ("mm", "m"):
-            raise ValueError(f"float_depth_unit must be 'mm' or 'm', got {self.float_depth_unit!r}.")
-        info = self.camera_info
-        self.camera_info = {
-            **{k: info[k] for k in ("width", "height")},
-            **{k: float(info[k]) for k in ("fx", "fy", "cx", "cy")},
-            "T_base_cam": [[float(x) for x in row] for row in info["T_base_cam"]],
-            "depth_scale": float(info.get("depth_scale", 0.001)),
-        }
-        self.crop_min = [float(x) for x in self.crop_min]
-        self.crop_max = [float(x) for x in self.crop_max]
-        self._intrinsics = PinholeIntrinsics(
-            fx=self.camera_info["fx"],
-            fy=self.camera_info["fy"],
-            cx=self.camera_info["cx"],
-            cy=self.camera_info["cy"],
-            width=int(self.camera_info["width"]),
-            height=int(self.camera_info["height"]),
-        )
-        self._pose = np.asarray(self.camera_info["T_base_cam"], dtype=np.float64)
-        if self._pose.shape != (4, 4):
-            raise ValueError(f"camera_info T_base_cam must be 4x4, got shape {self._pose.shape}.")
-        self._spec = PointCloudSpec(
-            num_points=int(self.num_points),
-            bounds=WorkspaceBounds(tuple(self.crop_min), tuple(self.crop_max)),
-            voxel_size=float(self.voxel_size),
-        )
-        self._last_empty_warning = -np.inf
-
-    # --- the conversion ------------------------------------------------------------------------------------
-    def _split(self, depth: np.ndarray) -> tuple[tuple[int, ...], np.ndarray]:
-        """(lead dims, (N, H, W) frames) from any of (…, H, W), (…, 1, H, W), (…, H, W, 1)."""
-        h, w = self._intrinsics.height, self._intrinsics.width
-        shape = depth.shape
-        if depth.ndim >= 3 and shape[-3:] == (1, h, w):
-            lead = shape[:-3]
-        elif depth.ndim >= 3 and shape[-3:] == (h, w, 1):
-            lead = shape[:-3]
-        elif depth.ndim >= 2 and shape[-2:] == (h, w):
-            lead = shape[:-2]
-        else:
-            raise ValueError(
-                f"{DEPTH_TO_POINTCLOUD_STEP}: '{self.depth_key}' has shape {tuple(shape)}, but the camera info is "
-                f"for {h}x{w} depth frames. The camera_info (cameras.json) must come from the camera that "
-                "recorded this depth, at the same resolution (and rotation 0)."
-            )
-        return lead, depth.reshape(-1, h, w)
-
-    def metres_per_unit(self, dtype: np.dtype) -> float:
-        """Scale from the frame's values to metres: raw sensor units for integers, `float_depth_unit` for floats."""
-        raw = self.camera_info["depth_scale"]
-        if np.issubdtype(dtype, np.integer):
-            return raw
-        # LeRobot stores the raw frame as "mm" and decodes it to float mm, or to metres = mm / 1000.
-        return raw if self.float_depth_unit == "mm" else raw * 1000.0
-
-    def depth_to_points(self, depth: np.ndarray | torch.Tensor) -> np.ndarray:
-        """float32 (*lead, num_points, 3) point cloud(s) from a depth array/tensor of any supported layout."""
-        if isinstance(depth, torch.Tensor):
-            depth = depth.detach().cpu().numpy()
-        depth = np.asarray(depth)
-        lead, frames = self._split(depth)
-        scale = self.metres_per_unit(depth.dtype)
-        if not np.issubdtype(depth.dtype, np.integer) and self.float_depth_unit == "mm" and frames.size:
-            valid = frames[frames > 0]
-            if valid.size and float(np.median(valid)) < 20.0:
-                raise ValueError(
-                    f"{DEPTH_TO_POINTCLOUD_STEP}: '{self.depth_key}' looks like metres (median {np.median(valid):.3g}), "
-                    "but float depth is read as millimetres. Train without --dataset.depth_output_unit=m, or set "
-                    "--policy.pointcloud_depth_unit=m."
-                )
-        clouds = np.stack([self._one(f, scale) for f in frames])
-        if not np.any(clouds):
-            self._warn_empty()
-        return clouds.reshape(*lead, self._spec.num_points, 3)
-
-    def _one(self, frame: np.ndarray, scale: float) -> np.ndarray:
-        from lerobot_focal.geometry.pointcloud import depth_to_pointcloud
-
-        metres = frame.astype(np.float64) * scale
-        metres[metres < self.min_depth] = 0.0
-        return depth_to_pointcloud(metres, self._intrinsics, self._pose, self._spec, depth_scale=1.0)
-
-    def _warn_empty(self) -> None:
-        now = time.monotonic()
-        if now - self._last_empty_warning > 10.0:
-            self._last_empty_warning = now
-            logger.warning(
-                "%s: no depth point of '%s' lies inside the crop box %s..%s: the point cloud is all zeros. Check "
-                "the camera pose (T_base_cam), the crop box and the depth unit.",
-                DEPTH_TO_POINTCLOUD_STEP, self.depth_key, self.crop_min, self.crop_max,
-            )
-
-    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
-        if self.depth_key not in observation:
-            raise KeyError(
-                f"{DEPTH_TO_POINTCLOUD_STEP}: the observation has no '{self.depth_key}', from which this policy "
-                f"builds '{self.pointcloud_key}'. Present: {sorted(k for k in observation if k.startswith('observation'))}. "
-                "Run the robot with that depth camera (ur10e: a RealSense camera with use_depth: true; the sim "
-                "backend always provides front_depth), or map your key to it with --rename_map."
-            )
-        depth = observation[self.depth_key]
-        points = torch.from_numpy(self.depth_to_points(depth))
-        if isinstance(depth, torch.Tensor):
-            points = points.to(depth.device)
-        observation[self.pointcloud_key] = points
-        return observation
-
-    # --- LeRobot processor protocol ------------------------------------------------------------------------
-    def get_config(self) -> dict[str, Any]:
-        return {
-            "depth_key": self.depth_key,
-            "pointcloud_key": self.pointcloud_key,
-            "camera_info": self.camera_info,
-            "crop_min": self.crop_min,
-            "crop_max": self.crop_max,
-            "num_points": int(self.num_points),
-            "voxel_size": float(self.voxel_size),
-            "float_depth_unit": self.float_depth_unit,
-            "min_depth": float(self.min_depth),
-        }
-
-    def transform_features(
-        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
-    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
-        obs = dict(features.get(PipelineFeatureType.OBSERVATION, {}))
-        obs[self.pointcloud_key] = PolicyFeature(type=FeatureType.STATE, shape=(int(self.num_points), 3))
-        return {**features, PipelineFeatureType.OBSERVATION: obs}
-
-
-def crop_box_stats(crop_min, crop_max) -> dict[str, torch.Tensor]:
-    """Per-channel (3,) normalisation stats of a cloud cropped to the box: min/max are the box (every point
-    lies in it, so MIN_MAX maps the cloud into [-1, 1] at training and at rollout alike, independent of the
-    dataset), mean/std those of a uniform fill of the box (used only if STATE is switched to MEAN_STD)."""
-    lo = torch.tensor([float(x) for x in crop_min], dtype=torch.float32)
-    hi = torch.tensor([float(x) for x in crop_max], dtype=torch.float32)
-    return {"min": lo, "max": hi, "mean": (lo + hi) / 2, "std": (hi - lo) / 12**0.5}
-
-
-def _resolve_camera_info_path(config: FocalConfig) -> Path:
-    if config.pointcloud_camera_info:
-        path = Path(config.pointcloud_camera_info).expanduser()
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"--policy.pointcloud_camera_info={config.pointcloud_camera_info}: no such file. It is the "
-                "cameras.json the ur10e robot writes on every connect to "
-                "$HF_LEROBOT_CALIBRATION/robots/ur10e/<robot id or ur10e>_cameras.json."
-            )
-        return path
-    meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
-    root = getattr(meta, "root", None)
-    if root is not None and (Path(root) / "meta" / "cameras.json").is_file():
-        return Path(root) / "meta" / "cameras.json"
-    where = f"{Path(root) / 'meta' / 'cameras.json'} does not exist" if root is not None else "no dataset is known"
-    raise FileNotFoundError(
-        f"pointcloud_from_depth={config.pointcloud_from_depth!r} needs the depth camera's intrinsics and pose, "
-        f"which LeRobot does not store ({where}). The ur10e robot writes them on every connect to "
-        "$HF_LEROBOT_CALIBRATION/robots/ur10e/<robot id or ur10e>_cameras.json (default ~/.cache/huggingface/"
-        "lerobot/calibration): copy that file to <dataset root>/meta/cameras.json, or pass "
-        "--policy.pointcloud_camera_info=<path to it>."
-    )
-
-
-def make_depth_to_pointcloud_step(config: FocalConfig) -> DepthToPointCloudProcessorStep:
-    """The step for `config.pointcloud_from_depth`, with the camera info read from cameras.json."""
-    path = _resolve_camera_info_path(config)
-    infos = json.loads(path.read_text())
-    camera = config.pointcloud_camera_name
-    if camera not in infos:
-        raise KeyError(
-            f"{path} has no camera {camera!r} (it has {sorted(infos)}), needed for "
-            f"'{config.pointcloud_from_depth}'. Pass --policy.pointcloud_camera=<one of those>."
-        )
-    return DepthToPointCloudProcessorStep(
-        depth_key=config.pointcloud_from_depth,
-        pointcloud_key=config.pointcloud_key,
-        camera_info=infos[camera],
-        crop_min=list(config.pointcloud_crop_min),
-        crop_max=list(config.pointcloud_crop_max),
-        num_points=config.pointcloud_num_points,
-        voxel_size=config.pointcloud_voxel_size,
-        float_depth_unit=config.pointcloud_depth_unit,
-        min_depth=config.pointcloud_min_depth,
-    )
-
-
-def per_channel_pointcloud_stats(stats: dict[str, Any], num_channels: int) -> dict[str, Any]:
-    """Pool per-point-slot statistics (P, C) into per-channel ones (C,). Per-channel stats pass unchanged.
-
-    min/max pool exactly; mean is the mean over slots (equal counts); std pools the second moments;
-    any other statistic (quantiles, counts) is averaged over slots, an approximation noted here because
-    focal normalises point clouds with MIN_MAX.
-    """
-    out: dict[str, Any] = {}
-    tensors = {k: torch.as_tensor(v, dtype=torch.float64) for k, v in stats.items()}
-    for name, value in tensors.items():
-        if value.ndim < 2 or value.shape[-1] != num_channels:
-            out[name] = stats[name]
-            continue
-        flat = value.reshape(-1, num_channels)
-        if name == "min":
-            pooled = flat.min(0).values
-        elif name == "max":
-            pooled = flat.max(0).values
-        elif name == "std" and "mean" in tensors:
-            means = tensors["mean"].reshape(-1, num_channels)
-            second = (flat.pow(2) + means.pow(2)).mean(0)
-            pooled = (second - means.mean(0).pow(2)).clamp_min(0).sqrt()
-        else:
-            pooled = flat.mean(0)
-        out[name] = pooled.to(torch.float32)
-    return out
-
-
-#: A MIN_MAX range narrower than this is a dimension that is (nearly) constant in the data.
-DEGENERATE_RANGE = 1e-4
-
-
-def widen_degenerate_min_max(
-    stats: dict[str, dict[str, Any]], features: dict[str, PolicyFeature], norm_map: dict[str, Any]
-) -> dict[str, dict[str, Any]]:
-    """Give MIN_MAX dimensions that are constant in the data a unit scale, centred on their value.
-
-    LeRobot's MIN_MAX divides by (max − min) and falls back to 1e-8 when they are equal, so a dimension that
-    never moves in the demonstrations (an object coordinate of a task that never touches it, a second object
-    absent from a task) but moves at evaluation is scaled by ~1e8 and swamps the condition. Like DP3's
-    "limits" normaliser, such a dimension is shifted to 0 and left unscaled: min, max = value ∓ 1, so the
-    normalised value is (x − value). Returns a new stats dict; other features and dimensions are unchanged.
-    """
-    out = dict(stats)
-    for key, feature in features.items():
-        mode = norm_map.get(feature.type.value) if hasattr(feature.type, "value") else None
-        if key not in stats or str(getattr(mode, "value", mode)) != "MIN_MAX":
-            continue
-        entry = stats[key]
-        if "min" not in entry or "max" not in entry:
-            continue
-        lo = torch.as_tensor(entry["min"], dtype=torch.float32)
-        hi = torch.as_tensor(entry["max"], dtype=torch.float32)
-        flat = (hi - lo).abs() < DEGENERATE_RANGE
-        if not bool(flat.any()):
-            continue
-        mid = (lo + hi) / 2
-        out[key] = {**entry, "min": torch.where(flat, mid - 1.0, lo), "max": torch.where(flat, mid + 1.0, hi)}
-        logger.info("%s: %d dimension(s) constant in the data keep a unit scale: %s", key, int(flat.sum()),
-                    torch.nonzero(flat).flatten().tolist()[:16])
-    return out
+from lerobot_focal.policy.stats import adapt_dataset_stats
 
 
 def make_focal_pre_post_processors(
@@ -355,28 +36,18 @@ def make_focal_pre_post_processors(
     PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
-    stats = dict(dataset_stats) if dataset_stats is not None else None
-    key = config.pointcloud_key
-    depth_step = None
-    if config.pointcloud_from_depth is not None:
-        depth_step = make_depth_to_pointcloud_step(config)
-        if stats is not None and key not in stats:
-            stats[key] = crop_box_stats(config.pointcloud_crop_min, config.pointcloud_crop_max)
-    if stats is not None and key in stats and key in config.input_features:
-        channels = config.input_features[key].shape[-1]
-        stats[key] = per_channel_pointcloud_stats(stats[key], channels)
+    # Before any statistic is used or adapted: a NaN/inf in the data shows up here as non-finite stats.
     meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
-    # Before any statistic is used or adjusted: a NaN/inf in the data shows up here as non-finite stats.
-    check_dataset_stats(stats, [*config.used_observation_keys, ACTION], meta)
+    check_dataset_stats(dataset_stats, [*config.used_observation_keys, ACTION], meta)
+    stats = adapt_dataset_stats(config, dataset_stats) if dataset_stats is not None else None
+    depth_step = make_depth_to_pointcloud_step(config) if config.pointcloud_from_depth is not None else None
     used = {k: config.input_features[k] for k in config.used_observation_keys}
-    if stats is not None:
-        stats = widen_degenerate_min_max(stats, {**used, **config.output_features}, config.normalization_mapping)
     s = make_default_policy_processor_steps(config, stats)
-    # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
-    shape_check = FocalInputShapeStep(shapes={k: list(ft.shape) for k, ft in used.items()})
     normalize = NormalizerProcessorStep(
         features={**used, **config.output_features}, norm_map=config.normalization_mapping, stats=stats
     )
+    # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
+    shape_check = FocalInputShapeStep(shapes={k: list(ft.shape) for k, ft in used.items()})
     # The cloud is made after batching (so an unbatched frame works too) and before the device move (numpy).
     extra = [depth_step] if depth_step is not None else []
     return make_policy_processor_pipelines(

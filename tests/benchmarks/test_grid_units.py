@@ -143,3 +143,17 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert entry["seeds"] == [0, 1] and entry["steps"] == 8000
     assert "+20.0 [+20.0, +20.0] (n=4; 4/0/0)" in report  # focal − diffusion, paired over 4 task-seed pairs
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+
+
+def test_demo_heldout_and_evaluation_seeds_never_overlap():
+    """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
+    from lerobot_focal.benchmarks.grid.datasets import DEMO_SEED, HELDOUT_SEED
+    from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
+
+    for preset in PRESETS.values():
+        periodic = {s + i for s in preset.seeds for i in range(preset.eval_episodes)}  # lerobot-train's own seeds
+        demos = set(range(DEMO_SEED, DEMO_SEED + 3 * preset.demos))  # collection tries up to 3x the demos
+        heldout = set(range(HELDOUT_SEED, HELDOUT_SEED + 3 * preset.heldout_demos))
+        final = {FINAL_EVAL_SEED + 1000 * s + i for s in preset.seeds for i in range(preset.final_episodes)}
+        sets = [periodic, demos, heldout, final]
+        assert all(not (a & b) for i, a in enumerate(sets) for b in sets[i + 1:]), preset.name

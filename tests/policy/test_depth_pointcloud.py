@@ -237,3 +237,31 @@ def test_dataset_meta_cameras_json_is_found(tmp_path):
     cfg._runtime_dataset_meta = type("Meta", (), {"root": tmp_path / "ds"})()
     pre, _ = make_focal_pre_post_processors(cfg, dataset_stats=_stats())
     assert any(isinstance(s, DepthToPointCloudProcessorStep) for s in pre.steps)
+
+
+def test_fine_tuning_a_depth_cloud_checkpoint_keeps_the_cloud_normalised(tmp_path):
+    """`lerobot-train --policy.path=<checkpoint>` on a new dataset: LeRobot builds the policy with the new
+    dataset's stats (`make_policy`), then reloads the saved preprocessor with those very stats as the
+    normaliser's override. The new dataset has depth, not a cloud, so its stats have no cloud entry: the policy
+    must leave the crop-box statistics there, or the cloud would pass un-normalised."""
+    from lerobot.processor import PolicyProcessorPipeline
+
+    cfg = _config(tmp_path)
+    pre, _ = make_focal_pre_post_processors(cfg, dataset_stats=_stats())
+    pre.save_pretrained(tmp_path / "ckpt")
+
+    new_stats = _stats()  # LeRobotDataset.meta.stats of the new dataset: no "observation.pointcloud"
+    FocalPolicy(cfg, dataset_stats=new_stats)  # what make_policy does with --policy.path
+    reloaded = PolicyProcessorPipeline.from_pretrained(
+        tmp_path / "ckpt", config_filename="policy_preprocessor.json",
+        overrides={"normalizer_processor": {"stats": new_stats, "features": {**cfg.input_features,
+                                                                               **cfg.output_features},
+                                            "norm_map": cfg.normalization_mapping}},
+    )
+    normalizer = next(s for s in reloaded.steps if type(s).__name__ == "NormalizerProcessorStep")
+    cloud = normalizer.stats["observation.pointcloud"]
+    torch.testing.assert_close(torch.as_tensor(cloud["min"]), torch.tensor(CROP_MIN, dtype=torch.float32))
+    torch.testing.assert_close(torch.as_tensor(cloud["max"]), torch.tensor(CROP_MAX, dtype=torch.float32))
+    depth = torch.from_numpy(_depth_mm().astype(np.float32))[None, None, None].repeat(1, 2, 1, 1, 1)
+    out = reloaded({"observation.state": torch.zeros(1, 2, 13), DEPTH_KEY: depth, "action": torch.zeros(1, 12, 7)})
+    assert out["observation.pointcloud"].abs().max() <= 1.0  # normalised into [-1, 1], as at training

@@ -1,9 +1,10 @@
 """Expert demonstrations for the grid: one training and one held-out LeRobotDataset per task, made once.
 
 Both come from `lerobot-focal-collect` (MetaWorld's scripted experts; full-length episodes kept when successful
-on ≥ 5 steps, as DP3 collects them). One pair per observation type a method of the grid reads. Held-out
-episodes use seeds far from the training ones (``HELDOUT_SEED``) so the open-loop metrics see unseen object
-placements. Collection resumes, so a grid interrupted while collecting completes the datasets on its next run.
+on ≥ 5 steps, as DP3 collects them). One pair per observation type a method of the grid reads. Training
+demos use seeds from ``DEMO_SEED``, never those of LeRobot's periodic evaluation; held-out episodes use seeds
+far from both (``HELDOUT_SEED``) so the open-loop metrics see unseen object placements. Collection resumes, so
+a grid interrupted while collecting completes the datasets on its next run.
 Runs on a cluster read these paths: put ``--work`` on a filesystem every node sees.
 """
 
@@ -18,6 +19,11 @@ from pathlib import Path
 
 from .presets import GridPreset
 
+#: Reset seeds of the training demos. LeRobot's periodic evaluation inside `lerobot-train` resets its envs with
+#: seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and a
+#: MetaWorld reset seed fixes the object and goal positions: demos collected from seeds 0, 1, … would put the
+#: training configurations into every evaluation. The demos start far above them.
+DEMO_SEED = 1_000
 HELDOUT_SEED = 100_000
 
 
@@ -79,7 +85,7 @@ def collect_task_data(data: TaskData, preset: GridPreset, obs_type: str | None, 
     log_dir.mkdir(parents=True, exist_ok=True)
     with open(log_dir / f".collect_{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, 0),
+        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, DEMO_SEED),
                                               (data.heldout_root, data.heldout_repo_id, preset.heldout_demos,
                                                HELDOUT_SEED)):
             if _complete(root, episodes):

@@ -81,8 +81,22 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
                    "seeds": seeds}
 
 
+def _stop_on_signals() -> None:
+    """SIGTERM (a scheduler, `kill`) stops the grid like Ctrl-C: runs in flight are stopped, finished ones kept.
+    SIGINT gets Python's handler back even when the driver was started in the background (where shells ignore
+    it), so `kill -INT` works too."""
+    import signal
+
+    def _interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    _stop_on_signals()
     args = parse_args(argv)
     specs, grid = build_specs(args)
     args.out.mkdir(parents=True, exist_ok=True)
