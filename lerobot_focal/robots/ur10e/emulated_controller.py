@@ -203,11 +203,12 @@ class EmulatedController:
             names = {RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED", RUNTIME_STOPPED: "STOPPED"}
             return f"{names.get(self.runtime_state, 'STOPPED')} rtde_control"
         if low == "stop":
+            # A stopped program stays stopped; ur_rtde sends this right after its own stopScript ended the
+            # script and expects "Stopped" either way.
             if self.runtime_state in (RUNTIME_PLAYING, RUNTIME_PAUSED):
                 self.script.halt()
                 self.runtime_state = RUNTIME_STOPPED
-                return "Stopped"
-            return "Failed to execute: stop"
+            return "Stopped"
         if low == "play":
             if self.runtime_state == RUNTIME_PAUSED and not self.protective_stopped:
                 self.runtime_state = RUNTIME_PLAYING
