@@ -171,15 +171,17 @@ class RtdeBackend:
         )
 
     def disconnect(self) -> None:
+        healthy = self.session is not None and self.session.dead is None and self.is_connected
         try:
-            if self.session is not None and self.session.dead is None and self.is_connected:
+            if healthy:
                 self._send_stops()
                 try:
                     self.session.call("stopScript", timeout_s=self.config.rtde_timeout_s)
                 except SessionError as e:
                     logger.warning("UR10e: stopping the control script failed: %s", e)
         finally:
-            self._close_session()
+            # A lost controller has nothing to hear: end the client at once instead of waiting on ur_rtde.
+            self._close_session(timeout_s=3.0 if healthy else 0.0)
             if self.gripper is not None:
                 self.gripper.disconnect()
                 self.gripper = None
@@ -188,9 +190,9 @@ class RtdeBackend:
                     cam.disconnect()
             self.cameras = {}
 
-    def _close_session(self) -> None:
+    def _close_session(self, timeout_s: float = 3.0) -> None:
         if self.session is not None:
-            self.session.close()
+            self.session.close(timeout_s)
         self.session = None
 
     # -- ArmBackend -------------------------------------------------------------------------------------------

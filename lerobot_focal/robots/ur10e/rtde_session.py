@@ -149,14 +149,14 @@ class RtdeSession:
         """Ask the child to disconnect ur_rtde and exit; kill it when it does not within `timeout_s`."""
         if self._proc is None:
             return
-        if self._dead is None:
+        if self._dead is None and timeout_s > 0:
             try:
                 with self._send_lock:
                     self._conn.send(("close",))
             except OSError:
                 pass
         try:
-            self._proc.wait(timeout_s)
+            self._proc.wait(timeout_s) if timeout_s > 0 else self._kill()
         except subprocess.TimeoutExpired:
             self._kill()
         self._dead = self._dead or "closed"

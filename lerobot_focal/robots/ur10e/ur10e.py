@@ -225,9 +225,23 @@ class UR10e(Robot):
             self.watchdog.raise_if_faulted()
             self.backend.check_health()
         except RobotFaultError:
-            self._fault_reported = True
-            self._stop_quietly()
+            self._on_fault()
             raise
+
+    def _on_fault(self) -> None:
+        """Stop the arm; when the controller is gone, also release the backend (its client, the watchdog)."""
+        self._fault_reported = True
+        self._stop_quietly()
+        if self.backend is not None and not self.backend.is_connected:
+            if self.watchdog is not None:
+                self.watchdog.stop()
+                self.safety.counters.watchdog_stops += self.watchdog.trips
+                self.watchdog = None
+            backend, self.backend = self.backend, None
+            try:
+                backend.disconnect()
+            except Exception:  # noqa: BLE001 - already reporting the fault
+                logger.exception("Releasing the lost UR10e backend failed")
 
     def _stop_quietly(self) -> None:
         self._target = None
@@ -348,8 +362,7 @@ class UR10e(Robot):
                                    self._gripper_cmd)
                 self.backend.set_gripper(self._gripper_cmd * AG95_MAX_OPENING_M)
         except RobotFaultError:
-            self._fault_reported = True
-            self._stop_quietly()
+            self._on_fault()
             raise
         self.watchdog.kick()
 
