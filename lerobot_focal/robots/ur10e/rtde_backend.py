@@ -171,7 +171,12 @@ class RtdeBackend:
         )
 
     def disconnect(self) -> None:
-        healthy = self.session is not None and self.session.dead is None and self.is_connected
+        healthy = (
+            self.session is not None
+            and self.session.dead is None
+            and self.is_connected
+            and time.monotonic() - self.session.snapshot.fresh_at <= self.stale_after_s
+        )
         try:
             if healthy:
                 self._send_stops()
@@ -181,7 +186,8 @@ class RtdeBackend:
                     logger.warning("UR10e: stopping the control script failed: %s", e)
         finally:
             # A lost controller has nothing to hear: end the client at once instead of waiting on ur_rtde.
-            self._close_session(timeout_s=3.0 if healthy else 0.0)
+            # ur_rtde's own disconnect can take seconds; the script is already stopped, so do not wait long.
+            self._close_session(timeout_s=1.0 if healthy else 0.0)
             if self.gripper is not None:
                 self.gripper.disconnect()
                 self.gripper = None
