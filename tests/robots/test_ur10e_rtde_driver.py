@@ -107,9 +107,10 @@ def test_controller_killed_mid_episode_raises_lost_the_controller_at_once(tmp_pa
                 robot.send_action({"ee_x.vel": 0.1})
                 time.sleep(period)
         noticed = time.monotonic() - killed
-        # The client sees the closed socket at once; the robot reports it on the next command or the one after
-        # (the child streams state every 10 ms), never after a multi-second ur_rtde timeout.
-        assert calls_after_kill <= 3, (calls_after_kill, noticed)
+        # The client sees the closed socket at once and the child streams state every 10 ms: the robot reports it
+        # on the first command after the kill (measured: 3.5-6 ms after it, 5 of 5 trials), or at the latest one
+        # control period later on a loaded machine — never after one of ur_rtde's multi-second timeouts.
+        assert calls_after_kill <= 2, (calls_after_kill, noticed)
         assert "reconnect" in str(err.value)
         assert not robot.is_connected
         with pytest.raises(DeviceNotConnectedError):
