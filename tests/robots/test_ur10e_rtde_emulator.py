@@ -3,7 +3,8 @@
 The emulator (``rtde_emulator``) serves RTDE (30004), the dashboard (29999) and the script port (30003) on a
 free loopback address, in its own process, with the MuJoCo twin behind it. ``RTDEReceiveInterface`` and
 ``RTDEControlInterface`` are the real classes from the ``ur-rtde`` wheel; every command they send is logged by
-the emulated control script with its raw registers, which is what these tests assert.
+the emulated control script with its raw registers, which is what these tests assert. The clients run in the
+test process (the emulator is another process), under a hard deadline since they hold the GIL while connecting.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ pytest.importorskip("mujoco")
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 
-from .ur_emulator_support import free_loopback_host  # noqa: E402
+from .ur_emulator_support import free_loopback_host, hard_deadline  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -32,8 +33,9 @@ def emulator():
 @pytest.fixture(scope="module")
 def clients(emulator):
     """One real receive + control client for the module (each constructor uploads the script: ~0.2 s)."""
-    recv = rtde_receive.RTDEReceiveInterface(emulator.host, 125.0)
-    ctrl = rtde_control.RTDEControlInterface(emulator.host, 125.0)
+    with hard_deadline(60):
+        recv = rtde_receive.RTDEReceiveInterface(emulator.host, 125.0)
+        ctrl = rtde_control.RTDEControlInterface(emulator.host, 125.0)
     yield recv, ctrl
     ctrl.stopScript()
     ctrl.disconnect()
@@ -105,7 +107,8 @@ def test_moveL_waits_for_the_motion_and_carries_speed_and_acceleration(emulator,
     target = start + np.array([0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
     since = emulator.status()["commands_total"]
     t0 = time.monotonic()
-    assert ctrl.moveL(target.tolist(), 0.2, 1.0) is True
+    with hard_deadline(60):  # moveL waits up to 300 s for "done" if the script never reports it
+        assert ctrl.moveL(target.tolist(), 0.2, 1.0) is True
     elapsed = time.monotonic() - t0
     (move,) = [c for c in _new_commands(emulator, since) if c["name"] == "moveL"]
     assert move["doubles"][6] == pytest.approx(0.2) and move["doubles"][7] == pytest.approx(1.0)
@@ -138,7 +141,7 @@ def test_speedL_is_stopped_by_speedStop_not_by_servoStop(emulator, clients):
 def test_second_control_client_is_refused_with_in_use_and_the_first_keeps_control(emulator, clients):
     recv, ctrl = clients
     before = emulator.status()["in_use_refusals"]
-    with pytest.raises(RuntimeError, match="already in use"):
+    with hard_deadline(60), pytest.raises(RuntimeError, match="already in use"):
         rtde_control.RTDEControlInterface(emulator.host, 125.0)
     assert emulator.status()["in_use_refusals"] == before + 1
     since = emulator.status()["commands_total"]

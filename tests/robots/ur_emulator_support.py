@@ -6,8 +6,11 @@ sessions on the same machine included — need different loopback addresses. Lin
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import random
 import socket
+from collections.abc import Iterator
 from pathlib import Path
 
 from lerobot_focal.robots.ur10e import UR10eConfig
@@ -48,3 +51,18 @@ def rtde_config(host: str, calibration_dir: Path, watchdog_s: float = 1.0, **ove
     )
     kwargs.update(overrides)
     return UR10eConfig(**kwargs)
+
+
+@contextlib.contextmanager
+def hard_deadline(seconds: float) -> Iterator[None]:
+    """End the test process (with every thread's traceback) if the block runs past `seconds`.
+
+    ur_rtde's constructors hold the GIL while they wait on the socket, and its RTDE setup has no client-side
+    timeout, so a Python-level timeout (pytest-timeout, signal handlers) cannot fire while they hang.
+    faulthandler's watchdog is a C thread that needs no GIL.
+    """
+    faulthandler.dump_traceback_later(seconds, exit=True)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
