@@ -149,3 +149,20 @@ def test_second_control_client_is_refused_with_in_use_and_the_first_keeps_contro
     assert ctrl.servoL(recv.getActualTCPPose(), 0.0, 0.0, 0.008, 0.1, 300.0) is True
     ctrl.servoStop(10.0)
     assert [c["name"] for c in _new_commands(emulator, since)] == ["servoL", "servoStop"]
+
+
+def test_trigger_protective_stop_reaches_the_safety_state_and_halts_the_script(emulator, clients):
+    """Last in this module: it leaves the shared controller protectively stopped."""
+    recv, ctrl = clients
+    since = emulator.status()["commands_total"]
+    assert ctrl.triggerProtectiveStop() is True
+    deadline = time.monotonic() + 5
+    while not recv.isProtectiveStopped() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert recv.isProtectiveStopped() and recv.getSafetyMode() == 3
+    assert recv.getSafetyStatusBits() == 0x404 and recv.getRuntimeState() == 4  # program paused
+    assert [c["name"] for c in emulator.commands(since)] == ["triggerProtectiveStop"]
+    before = np.array(recv.getActualTCPPose())
+    ctrl.servoL((before + [0, 0.05, 0, 0, 0, 0]).tolist(), 0.0, 0.0, 0.008, 0.1, 300.0)
+    time.sleep(0.3)
+    np.testing.assert_allclose(recv.getActualTCPPose(), before, atol=1e-4)  # a paused script moves nothing

@@ -24,6 +24,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -114,8 +115,9 @@ def _ur_pose_of(arm: TwinArm) -> np.ndarray:
 class ControlScript:
     """State machine of the ``rtde_control`` program (see module docstring). Thread-safe."""
 
-    def __init__(self, arm: TwinArm, log_size: int = 20000):
+    def __init__(self, arm: TwinArm, on_protective_stop: Callable[[], None] | None = None, log_size: int = 20000):
         self.arm = arm
+        self.on_protective_stop = on_protective_stop  # triggerProtectiveStop is the controller's business
         self.out_int = [0] * N_REGISTERS
         self.out_double = [0.0] * N_REGISTERS
         self.running = False
@@ -211,6 +213,10 @@ class ControlScript:
                 self._motion = None
                 self.arm.stop()
             self.out_int[0] = STATE_DONE
+        elif cmd == CMD_PROTECTIVE_STOP:
+            self.out_int[0] = STATE_DONE
+            if self.on_protective_stop is not None:
+                self.on_protective_stop()
         elif cmd in (CMD_MOVEL, CMD_MOVEJ):
             sync = self._in_int[1] == 0
             start = _ur_pose_of(self.arm) if cmd == CMD_MOVEL else np.asarray(self.arm.read_state().q)

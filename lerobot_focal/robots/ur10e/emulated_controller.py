@@ -54,7 +54,7 @@ class EmulatedController:
     def __init__(self, arm: TwinArm, options: ControllerOptions | None = None):
         self.arm = arm
         self.options = options or ControllerOptions()
-        self.script = ControlScript(arm)
+        self.script = ControlScript(arm, on_protective_stop=lambda: self.protective_stop("triggerProtectiveStop"))
         self.runtime_state = RUNTIME_STOPPED
         self.protective_stop_since: float | None = None
         self.protective_stop_cause = ""
@@ -142,8 +142,6 @@ class EmulatedController:
         with self._lock:
             was_running = self.script.running
             self.script.write_registers(recipe_id, values, active=self.motion_allowed)
-            if self.script.commands and self.script.commands[-1].command == 31 and self.motion_allowed:
-                self.protective_stop("triggerProtectiveStop from the client")
             if was_running and not self.script.running:
                 self.runtime_state = RUNTIME_STOPPED
 
