@@ -103,16 +103,18 @@ class RtdeBackend:
             ) from e
         self.session = session
         try:
-            if not session.wait_for(lambda v: v.get("program_running"), timeout_s=self.config.rtde_connect_timeout_s):
+            # ur_rtde 1.6.5 does not upload its script to PolyScope X: only a program started there could run it.
+            wait_s = min(self.config.rtde_connect_timeout_s, 5.0) if major >= 10 else self.config.rtde_connect_timeout_s
+            if not session.wait_for(lambda v: v.get("program_running"), timeout_s=wait_s):
                 hint = (
-                    " ur_rtde 1.6.5 does not start its control script on PolyScope X (10.x) controllers; use an "
-                    "e-Series 5.x controller (or URSim 5.x), or a newer ur_rtde release that supports 10.x."
+                    " ur_rtde 1.6.5 does not upload its control script to a PolyScope X (10.x) controller (its "
+                    "constructor returns without it); use an e-Series 5.x controller or URSim 5.x."
                     if major >= 10
                     else " Check the teach pendant for a popup or a protective stop, then reconnect."
                 )
                 raise ConnectionError(
                     f"UR controller at {ip} ({self._version_str()}): ur_rtde's control script is not running "
-                    f"{self.config.rtde_connect_timeout_s:.0f} s after connecting.{hint}"
+                    f"{wait_s:.0f} s after connecting.{hint}"
                 )
             session.send("setTcp", [0.0, 0.0, float(self.config.tcp_offset), 0.0, 0.0, 0.0])
             self.check_health()
