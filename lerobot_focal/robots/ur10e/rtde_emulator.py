@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -150,7 +151,6 @@ class RtdeEmulatorProcess:
                  start_timeout_s: float = 120.0):  # fmt: skip
         import socket
         import subprocess
-        import sys
         from multiprocessing.connection import Connection
 
         self.host = host
@@ -258,7 +258,8 @@ def main(argv: list[str] | None = None) -> None:  # pragma: no cover - CLI
     parser.add_argument("--on-protective-stop", choices=("pause", "stop"), default="pause")
     parser.add_argument("--control-fd", type=int, default=None, help=argparse.SUPPRESS)  # RtdeEmulatorProcess
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO)
+    logging.basicConfig(level=logging.INFO, force=True)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # stop cleanly (the finally below) on `kill`
     version = tuple(int(v) for v in args.version.split("."))
     if args.control_fd is not None:
         from multiprocessing.connection import Connection
@@ -275,7 +276,7 @@ def main(argv: list[str] | None = None) -> None:  # pragma: no cover - CLI
     try:
         while True:
             time.sleep(1.0)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):
         pass
     finally:
         emu.stop()
