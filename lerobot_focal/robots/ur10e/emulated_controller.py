@@ -108,7 +108,11 @@ class EmulatedController:
         state = self.arm.read_state()
         qd = self.arm.joint_velocities()
         tcp = rotvec_pose_from_pose6(state.tcp_pose)
-        stopped = self.protective_stopped
+        with self._lock:  # one consistent picture: safety bits and runtime state change together
+            stopped = self.protective_stopped
+            runtime_state = self.runtime_state
+            out_int = list(self.script.out_int)
+            out_double = list(self.script.out_double)
         values: dict[str, Any] = {
             "timestamp": time.monotonic() - self._t0,
             "actual_q": [float(x) for x in state.q],
@@ -122,18 +126,18 @@ class EmulatedController:
             "safety_mode": SAFETY_MODE_PROTECTIVE_STOP if stopped else SAFETY_MODE_NORMAL,
             "safety_status": SAFETY_MODE_PROTECTIVE_STOP if stopped else SAFETY_MODE_NORMAL,
             "safety_status_bits": SAFETY_BITS_PROTECTIVE_STOP if stopped else SAFETY_BITS_NORMAL,
-            "robot_status_bits": STATUS_BIT_POWER_ON | (STATUS_BIT_PROGRAM_RUNNING if self.program_running else 0),
-            "runtime_state": self.runtime_state,
+            "robot_status_bits": STATUS_BIT_POWER_ON
+            | (STATUS_BIT_PROGRAM_RUNNING if runtime_state == RUNTIME_PLAYING else 0),
+            "runtime_state": runtime_state,
             "speed_scaling": 1.0,
             "target_speed_fraction": 1.0,
             "actual_main_voltage": 48.0,
             "actual_robot_voltage": 48.0,
             "joint_temperatures": [30.0] * 6,
         }
-        s = self.script
-        for i in range(len(s.out_int)):
-            values[f"output_int_register_{i}"] = s.out_int[i]
-            values[f"output_double_register_{i}"] = s.out_double[i]
+        for i, (vi, vd) in enumerate(zip(out_int, out_double, strict=True)):
+            values[f"output_int_register_{i}"] = vi
+            values[f"output_double_register_{i}"] = vd
         return values
 
     # -- events -----------------------------------------------------------------------------------------------

@@ -44,7 +44,13 @@ _SAFETY_MODE_NAMES = {
     12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
     13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
 }
+_STATUS_BIT_PROGRAM_RUNNING = 1 << 1  # robot_status_bits
 _RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
+
+
+def _script_running(values: dict[str, Any]) -> bool:
+    """Both views agree that ur_rtde's control script runs: the controller's status bits and the client's own."""
+    return bool(int(values.get("robot_status_bits", 0)) & _STATUS_BIT_PROGRAM_RUNNING and values.get("program_running"))
 
 
 def import_ur_rtde() -> tuple[Any, Any]:
@@ -105,7 +111,7 @@ class RtdeBackend:
         try:
             # ur_rtde 1.6.5 does not upload its script to PolyScope X: only a program started there could run it.
             wait_s = min(self.config.rtde_connect_timeout_s, 5.0) if major >= 10 else self.config.rtde_connect_timeout_s
-            if not session.wait_for(lambda v: v.get("program_running"), timeout_s=wait_s):
+            if not session.wait_for(_script_running, timeout_s=wait_s):
                 hint = (
                     " ur_rtde 1.6.5 does not upload its control script to a PolyScope X (10.x) controller (its "
                     "constructor returns without it); use an e-Series 5.x controller or URSim 5.x."
@@ -283,7 +289,10 @@ class RtdeBackend:
                 f"UR10e (rtde): safety mode is {_SAFETY_MODE_NAMES.get(mode, mode)}; the arm cannot move. "
                 "Resolve it on the teach pendant, then reconnect."
             )
-        if not v.get("program_running"):
+        # The receive interface's status bits, not the control interface's isProgramRunning(): they arrive in the
+        # same RTDE package as the safety bits above, so a protective stop is named as such, not as a stopped
+        # program seen a few milliseconds earlier on the other connection.
+        if not int(v.get("robot_status_bits", 0)) & _STATUS_BIT_PROGRAM_RUNNING:
             state = _RUNTIME_STATE_NAMES.get(int(v.get("runtime_state", -1)), v.get("runtime_state"))
             raise RobotFaultError(
                 f"UR10e (rtde): ur_rtde's control script is not running on the controller (runtime state "
@@ -324,7 +333,7 @@ class RtdeBackend:
             dash.request("close safety popup")
             if not s.wait_for(lambda v: not v.get("protective_stopped"), timeout_s=max(0.1, deadline - time.monotonic())):
                 raise RobotFaultError("UR10e (rtde): the controller still reports a protective stop after the unlock.")
-        if not s.snapshot.values.get("program_running"):
+        if not _script_running(s.snapshot.values):
             if int(s.snapshot.values.get("runtime_state", 1)) == 4:  # paused: end it so the script can be uploaded
                 dash.request("stop")
             s.wait_for(lambda v: int(v.get("runtime_state", 1)) != 4, timeout_s=2.0)
@@ -332,7 +341,7 @@ class RtdeBackend:
                 s.call("reuploadScript", timeout_s=max(0.1, min(5.0, deadline - time.monotonic())))
             except SessionError as e:
                 raise RobotFaultError(f"UR10e (rtde): re-uploading the control script failed: {e}") from e
-            if not s.wait_for(lambda v: v.get("program_running"), timeout_s=max(0.1, deadline - time.monotonic())):
+            if not s.wait_for(_script_running, timeout_s=max(0.1, deadline - time.monotonic())):
                 raise RobotFaultError(
                     f"UR10e (rtde): the control script was re-uploaded but is not running within {timeout_s:.0f} s."
                 )
