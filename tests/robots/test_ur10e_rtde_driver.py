@@ -137,20 +137,23 @@ def test_protective_stop_stops_motion_names_the_cause_and_recovers(emulator, tmp
     try:
         uploads = len(emulator.status()["script_uploads"])
         _drive(robot, {"ee_y.vel": 0.1}, 5)
+        t_stop = time.monotonic()
         emulator.protective_stop("collision")
         with pytest.raises(RobotFaultError, match=r"protective stop \(safety status bits 0x404\).*recover"):
             _drive(robot, {"ee_y.vel": 0.1}, 50)
         assert _wait_still(emulator) < 1e-3  # motion stopped
-        t0 = time.monotonic()
+        t_recover = time.monotonic()
         robot.recover()
+        assert time.monotonic() - t_stop >= 5.0  # it could not come back inside the unlock window
         status = emulator.status()
         replies = [r for q, r in status["dashboard_log"] if q == "unlock protective stop"]
         # Unlocking is refused for 5 s after the stop; recover() retried until it was accepted ...
-        assert replies[-1] == "Protective stop releasing" and replies[0].startswith("Cannot unlock")
+        assert replies[-1] == "Protective stop releasing"
+        if t_recover - t_stop < 4.5:  # (on a very slow machine the arm may take that long to settle)
+            assert replies[0].startswith("Cannot unlock"), replies
         # ... then re-uploaded the control script and returned only once the controller ran it.
         assert len(status["script_uploads"]) == uploads + 1
         assert status["program_running"] and not status["protective_stop"]
-        assert time.monotonic() - t0 < 15
         y0 = _tcp(robot.get_observation())[1]
         _drive(robot, {"ee_y.vel": 0.1}, 10)
         time.sleep(0.3)
