@@ -55,10 +55,10 @@ def _env(tmp: Path, pad: bool) -> dict[str, str]:
     return env
 
 
-def _record_args(root: Path, episodes: int) -> list[str]:
+def _record_args(root: Path, episodes: int, robot: list[str] = ROBOT) -> list[str]:
     return [
         str(BIN / "lerobot-record"),
-        *ROBOT,
+        *robot,
         "--teleop.type=focal_gamepad",
         f"--dataset.repo_id={REPO_ID}",
         f"--dataset.root={root}",
@@ -82,6 +82,20 @@ def _run(args: list[str], env: dict, log: Path, timeout: float) -> subprocess.Co
 
 def _tail(log: Path, n: int = 40) -> str:
     return "\n".join(log.read_text(errors="replace").splitlines()[-n:])
+
+
+def assert_frames_match_their_timestamps(ds, frames: list) -> None:
+    """What a recording must contain whatever the machine's speed: per episode, frames numbered 0..n-1 with
+    timestamps n / fps, none beyond the episode's time (a loaded host records fewer frames, never more)."""
+    lengths = [int(e["length"]) for e in ds.meta.episodes]
+    assert len(frames) == sum(lengths)
+    ep = np.array([int(f["episode_index"]) for f in frames])
+    for e, n in enumerate(lengths):
+        assert 2 <= n <= EPISODE_S * FPS, lengths
+        idx = np.array([int(f["frame_index"]) for f in frames])[ep == e]
+        ts = np.array([float(f["timestamp"]) for f in frames])[ep == e]
+        np.testing.assert_array_equal(idx, np.arange(n))
+        np.testing.assert_allclose(ts, idx / ds.fps, atol=1e-4)
 
 
 def _load(root: Path):
@@ -110,11 +124,8 @@ def test_record_with_virtual_gamepad_writes_a_valid_dataset(recorded):
     names = ds.meta.features["observation.state"]["names"]
     assert names[6:] == [f"ee_{a}.pos" for a in ("x", "y", "z", "roll", "pitch", "yaw")] + ["gripper.pos"]
     assert ds.meta.features["observation.images.front_depth"]["info"]["is_depth_map"] is True
-    # ~EPISODE_S * FPS frames per episode (a slow host may drop a few, never add any).
-    lengths = [int(e["length"]) for e in ds.meta.episodes]
-    assert all(0.7 * EPISODE_S * FPS <= n <= EPISODE_S * FPS for n in lengths), lengths
-
     frames = [ds[i] for i in range(len(ds))]
+    assert_frames_match_their_timestamps(ds, frames)
     actions = np.stack([f["action"].numpy() for f in frames])
     states = np.stack([f["observation.state"].numpy() for f in frames])
     # The virtual pad holds the deadman and pushes the sticks: recorded commands are non-zero, bounded by the

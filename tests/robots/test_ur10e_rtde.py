@@ -1,4 +1,8 @@
-"""The rtde backend's boundary without hardware: import safety and controller-state checks."""
+"""The rtde backend without a controller: the install hint, camera calibration checks, pose conversions.
+
+Everything that talks to a controller is tested against the emulated one (test_ur10e_rtde_emulator.py,
+test_ur10e_rtde_driver.py), through the real ur_rtde client.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +13,6 @@ import pytest
 
 from lerobot_focal.robots.ur10e import UR10e, UR10eConfig
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
-from lerobot_focal.robots.ur10e.safety import RobotFaultError
 
 
 def test_missing_ur_rtde_names_the_extra(monkeypatch, tmp_path):
@@ -36,57 +39,3 @@ def test_ur_rotvec_round_trip():
     np.testing.assert_allclose(pose6_from_rotvec_pose(rotvec_pose_from_pose6(pose)), pose, atol=1e-9)
     # tool pointing straight down is UR's [.., pi, 0, 0] rotation vector and our zero orientation
     np.testing.assert_allclose(pose6_from_rotvec_pose([0, 0, 0, np.pi, 0, 0])[3:], 0.0, atol=1e-9)
-
-
-class _FakeReceive:
-    """Smallest stand-in for RTDEReceiveInterface's health queries."""
-
-    def __init__(self, connected=True, protective=False, estop=False, mode=1):
-        self.connected, self.protective, self.estop, self.mode = connected, protective, estop, mode
-
-    def isConnected(self):  # noqa: N802 - ur_rtde's name
-        return self.connected
-
-    def isProtectiveStopped(self):  # noqa: N802
-        return self.protective
-
-    def isEmergencyStopped(self):  # noqa: N802
-        return self.estop
-
-    def getSafetyMode(self):  # noqa: N802
-        return self.mode
-
-
-class _FakeControl:
-    def __init__(self):
-        self.calls = []
-
-    def isConnected(self):  # noqa: N802
-        return True
-
-    def servoStop(self):  # noqa: N802
-        self.calls.append("servoStop")
-
-    def speedStop(self):  # noqa: N802
-        self.calls.append("speedStop")
-
-
-@pytest.mark.parametrize(
-    ("recv", "message"),
-    [
-        (_FakeReceive(connected=False), "lost the RTDE connection"),
-        (_FakeReceive(protective=True), "protective stop"),
-        (_FakeReceive(estop=True), "emergency stop"),
-        (_FakeReceive(mode=5), "SAFEGUARD_STOP"),
-    ],
-)
-def test_health_checks_name_the_fault(recv, message):
-    pytest.importorskip("rtde_control")
-    from lerobot_focal.robots.ur10e.rtde_backend import RtdeBackend
-
-    backend = RtdeBackend(UR10eConfig(backend="rtde"))
-    backend.recv, backend.ctrl = recv, _FakeControl()
-    with pytest.raises(RobotFaultError, match=message):
-        backend.check_health()
-    backend.stop()
-    assert backend.ctrl.calls == ["servoStop", "speedStop"]

@@ -1,137 +1,168 @@
-"""The rtde backend against an emulated UR controller over loopback, with ur_rtde's real receive interface.
+"""ur_rtde 1.6.5's real clients against the emulated UR controller: what reaches the controller's registers.
 
-The emulator (``rtde_emulator.RtdeEmulator``) speaks RTDE protocol v2 on port 30004 with the MuJoCo twin behind
-it, in a child process (ur_rtde's bindings keep the GIL while blocking). ``RTDEReceiveInterface`` is the real
-one from the ``ur-rtde`` wheel. ``RTDEControlInterface`` cannot be served by a protocol emulator (it needs the
-dashboard server and runs an uploaded URScript program; the first test pins that down), so the control side
-is ``FakeRTDEControlInterface`` — the one fake, applying servoL/stop to the same simulated arm.
+The emulator (``rtde_emulator``) serves RTDE (30004), the dashboard (29999) and the script port (30003) on a
+free loopback address, in its own process, with the MuJoCo twin behind it. ``RTDEReceiveInterface`` and
+``RTDEControlInterface`` are the real classes from the ``ur-rtde`` wheel; every command they send is logged by
+the emulated control script with its raw registers, which is what these tests assert. The clients run in the
+test process (the emulator is another process), under a hard deadline since they hold the GIL while connecting.
 """
 
 from __future__ import annotations
 
-import random
 import time
-import types
 
 import numpy as np
 import pytest
-from lerobot.utils.errors import DeviceNotConnectedError
 
 rtde_receive = pytest.importorskip("rtde_receive")
 rtde_control = pytest.importorskip("rtde_control")
 pytest.importorskip("mujoco")
 
-from lerobot_focal.robots.ur10e import UR10e, UR10eConfig  # noqa: E402
-from lerobot_focal.robots.ur10e import rtde_backend  # noqa: E402
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose  # noqa: E402
-from lerobot_focal.robots.ur10e.rtde_emulator import FakeRTDEControlInterface, RtdeEmulatorProcess  # noqa: E402
-from lerobot_focal.robots.ur10e.safety import RobotFaultError, SafetyConfig  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
+
+from .ur_emulator_support import free_loopback_host, hard_deadline  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def emulator():
-    # ur_rtde always dials port 30004: a random loopback address keeps parallel runs apart.
-    host = f"127.{random.randint(1, 250)}.{random.randint(1, 250)}.{random.randint(2, 250)}"
-    with RtdeEmulatorProcess(host) as emu:
+    with RtdeEmulatorProcess(free_loopback_host()) as emu:
         yield emu
 
 
-def test_control_interface_needs_the_dashboard_server(emulator):
-    """Why the control side is faked: ur_rtde's control interface first dials the dashboard server (29999),
-    which a protocol emulator does not provide, before it would upload and run its URScript program."""
-    with pytest.raises(RuntimeError, match="dashboard"):
-        rtde_control.RTDEControlInterface(emulator.host, 125.0)
+@pytest.fixture(scope="module")
+def clients(emulator):
+    """One real receive + control client for the module (each constructor uploads the script: ~0.2 s)."""
+    with hard_deadline(60):
+        recv = rtde_receive.RTDEReceiveInterface(emulator.host, 125.0)
+        ctrl = rtde_control.RTDEControlInterface(emulator.host, 125.0)
+    yield recv, ctrl
+    ctrl.stopScript()
+    ctrl.disconnect()
+    recv.disconnect()
 
 
-def test_real_receive_interface_reads_the_simulated_arm(emulator):
-    recv = rtde_receive.RTDEReceiveInterface(emulator.host, 125.0)
-    try:
-        time.sleep(0.2)
-        assert recv.isConnected()
-        q, tcp, _ = emulator.arm_state()
-        np.testing.assert_allclose(recv.getActualQ(), q, atol=1e-6)
-        np.testing.assert_allclose(pose6_from_rotvec_pose(recv.getActualTCPPose()), tcp, atol=1e-6)
-        assert recv.getSafetyMode() == 1 and recv.getRobotMode() == 7
-        assert not recv.isProtectiveStopped() and not recv.isEmergencyStopped()
-        t0 = recv.getTimestamp()
-        time.sleep(0.3)
-        assert recv.getTimestamp() - t0 == pytest.approx(0.3, abs=0.15)  # the stream keeps flowing
-        assert "actual_TCP_pose" in emulator.status()["requested_outputs"]
-    finally:
-        recv.disconnect()
+def _new_commands(emulator, since: int) -> list[dict]:
+    return emulator.commands(since)
 
 
-@pytest.fixture
-def robot(emulator, monkeypatch, tmp_path):
-    fakes: list[FakeRTDEControlInterface] = []
-
-    def make_control(ip, freq):
-        fakes.append(FakeRTDEControlInterface(emulator, ip, freq))
-        return fakes[-1]
-
-    fake_module = types.SimpleNamespace(RTDEControlInterface=make_control)
-    monkeypatch.setattr(rtde_backend, "import_ur_rtde", lambda: (fake_module, rtde_receive))
-    emulator.clear_faults()
-    cfg = UR10eConfig(
-        backend="rtde",
-        robot_ip=emulator.host,
-        rtde_frequency=125.0,
-        gripper="none",
-        calibration_dir=tmp_path,
-        safety=SafetyConfig(watchdog_timeout_s=1.0),
-    )
-    r = UR10e(cfg)
-    r.connect()
-    r.fake_control = fakes[-1]
-    yield r
-    if r.is_connected:
-        r.disconnect()
+def _wait_still(emulator, timeout_s: float = 5.0) -> float:
+    deadline = time.monotonic() + timeout_s
+    speed = emulator.arm_state()[2]
+    while speed > 1e-3 and time.monotonic() < deadline:
+        time.sleep(0.05)
+        speed = emulator.arm_state()[2]
+    return speed
 
 
-def _tcp(obs):
-    return np.array([obs[f"ee_{a}.pos"] for a in ("x", "y", "z", "roll", "pitch", "yaw")])
-
-
-def test_robot_moves_through_rtde_and_reads_back_through_real_receive(robot, emulator):
-    assert robot.fake_control.tcp_offset == [0.0, 0.0, robot.config.tcp_offset, 0.0, 0.0, 0.0]
-    start = _tcp(robot.get_observation())
-    for _ in range(20):
-        robot.send_action({"ee_y.vel": 0.15})
-        time.sleep(1 / robot.config.control_hz)
-    time.sleep(0.4)
-    end = _tcp(robot.get_observation())  # read through the real RTDEReceiveInterface
-    assert end[1] - start[1] > 0.05, (start, end)
-    np.testing.assert_allclose(end[[0, 2]], start[[0, 2]], atol=0.01)
-    np.testing.assert_allclose(end, emulator.arm_state()[1], atol=2e-3)
-
-
-def test_dropped_connection_mid_episode_stops_arm_with_clear_error(robot, emulator):
-    for _ in range(5):
-        robot.send_action({"ee_x.vel": 0.2})
-        time.sleep(1 / robot.config.control_hz)
-    emulator.drop_connections()  # the network cable is pulled while the arm moves
-    # Let ur_rtde's receive thread notice first (the race that once surfaced LeRobot's generic "not connected"
-    # instead of the clear fault): the next command must still report the lost connection itself.
-    deadline = time.monotonic() + 0.5
-    while robot.backend.recv.isConnected() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    with pytest.raises(RobotFaultError, match="lost the RTDE connection"):
-        for _ in range(50):  # the receive thread notices within a few ms; the watchdog too
-            robot.send_action({"ee_x.vel": 0.2})
-            time.sleep(1 / robot.config.control_hz)
-    calls = robot.fake_control.calls
-    assert "servoStop" in calls[calls.index("servoL") :] and "speedStop" in calls
+def test_real_receive_interface_reads_the_twin(emulator, clients):
+    recv, _ = clients
+    q, tcp, _ = emulator.arm_state()
+    np.testing.assert_allclose(recv.getActualQ(), q, atol=1e-4)
+    np.testing.assert_allclose(pose6_from_rotvec_pose(recv.getActualTCPPose()), tcp, atol=1e-4)
+    assert recv.getSafetyMode() == 1 and recv.getRobotMode() == 7
+    assert not recv.isProtectiveStopped() and not recv.isEmergencyStopped()
+    t0 = recv.getTimestamp()
     time.sleep(0.3)
-    assert emulator.arm_state()[2] < 0.02  # joint speeds ~0: the arm holds still
-    assert not robot.is_connected  # and it says so: LeRobot's own "not connected" error from here on
-    with pytest.raises(DeviceNotConnectedError):
-        robot.get_observation()
+    assert recv.getTimestamp() > t0  # the stream keeps flowing
 
 
-def test_protective_stop_is_reported_and_motion_refused(robot, emulator):
-    robot.send_action({"ee_x.vel": 0.0})
-    emulator.protective_stop()
-    time.sleep(0.1)
-    with pytest.raises(RobotFaultError, match="protective stop"):
-        robot.send_action({"ee_x.vel": 0.1})
-    assert robot.fake_control.calls[-2:] == ["servoStop", "speedStop"]
+def test_control_interface_uploads_its_script_and_reports_it_running(emulator, clients):
+    _, ctrl = clients
+    status = emulator.status()
+    assert ctrl.isConnected() and ctrl.isProgramRunning()
+    assert status["script_uploads"][-1] == "def rtde_control():"
+    assert status["runtime_state"] == 2
+    # The control interface's own output recipe: the 13 variables of a controller before 5.23.
+    assert status["requested_outputs"][-1][:4] == ["timestamp", "robot_status_bits", "safety_status_bits", "runtime_state"]
+    assert len(status["requested_outputs"][-1]) == 13
+    # A loopback address other than 127.0.0.1 makes the client ask whether the robot is in remote control.
+    assert ("is in remote control", "true") in [tuple(x) for x in status["dashboard_log"]]
+
+
+def test_servoL_registers_carry_pose_in_base_frame_metres_and_servo_parameters(emulator, clients):
+    recv, ctrl = clients
+    start = np.array(recv.getActualTCPPose())
+    since = emulator.status()["commands_total"]
+    target = start + np.array([0.0, 0.03, -0.02, 0.0, 0.0, 0.0])  # 3 cm along +y, 2 cm down (metres)
+    for _ in range(60):
+        assert ctrl.servoL(target.tolist(), 0.25, 1.2, 0.008, 0.1, 300.0) is True
+        time.sleep(0.008)
+    ctrl.servoStop(10.0)
+    cmds = _new_commands(emulator, since)
+    servo = [c for c in cmds if c["name"] == "servoL"]
+    assert servo, cmds
+    d = {int(k): v for k, v in servo[-1]["doubles"].items()}
+    np.testing.assert_allclose([d[i] for i in range(6)], target, atol=1e-12)  # x, y, z, rx, ry, rz as sent
+    assert (d[6], d[7], d[8], d[9], d[10]) == pytest.approx((0.25, 1.2, 0.008, 0.1, 300.0))
+    assert cmds[-1]["name"] == "servoStop" and cmds[-1]["doubles"][0] == pytest.approx(10.0)
+    # The twin went where the registers said, in metres: the same base frame the receive interface reports.
+    _wait_still(emulator)
+    np.testing.assert_allclose(recv.getActualTCPPose()[:3], target[:3], atol=3e-3)
+
+
+def test_moveL_waits_for_the_motion_and_carries_speed_and_acceleration(emulator, clients):
+    recv, ctrl = clients
+    start = np.array(recv.getActualTCPPose())
+    target = start + np.array([0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
+    since = emulator.status()["commands_total"]
+    t0 = time.monotonic()
+    with hard_deadline(60):  # moveL waits up to 300 s for "done" if the script never reports it
+        assert ctrl.moveL(target.tolist(), 0.2, 1.0) is True
+    elapsed = time.monotonic() - t0
+    (move,) = [c for c in _new_commands(emulator, since) if c["name"] == "moveL"]
+    assert move["doubles"][6] == pytest.approx(0.2) and move["doubles"][7] == pytest.approx(1.0)
+    assert move["ints"][1] == 0  # synchronous
+    # moveL returned only once the arm had arrived: 5 cm at 0.2 m/s takes at least 0.25 s.
+    assert elapsed >= 0.2
+    np.testing.assert_allclose(recv.getActualTCPPose()[:3], target[:3], atol=3e-3)
+
+
+def test_speedL_is_stopped_by_speedStop_not_by_servoStop(emulator, clients):
+    recv, ctrl = clients
+    since = emulator.status()["commands_total"]
+    assert ctrl.speedL([0.0, -0.04, 0.0, 0.0, 0.0, 0.0], 0.5, 0.0) is True
+    time.sleep(0.3)
+    ctrl.servoStop(10.0)
+    time.sleep(0.3)
+    assert emulator.arm_state()[2] > 0.01  # still moving: servoStop does not end speed mode
+    y0 = recv.getActualTCPPose()[1]
+    ctrl.speedStop(10.0)
+    assert _wait_still(emulator) < 1e-3
+    y1 = recv.getActualTCPPose()[1]
+    time.sleep(0.3)
+    assert abs(recv.getActualTCPPose()[1] - y1) < 1e-3 and y1 < y0
+    names = [c["name"] for c in _new_commands(emulator, since)]
+    assert names == ["speedL", "servoStop", "speedStop"], names
+    speed = _new_commands(emulator, since)[0]["doubles"]
+    assert [speed[i] for i in range(8)] == pytest.approx([0.0, -0.04, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0])
+
+
+def test_second_control_client_is_refused_with_in_use_and_the_first_keeps_control(emulator, clients):
+    recv, ctrl = clients
+    before = emulator.status()["in_use_refusals"]
+    with hard_deadline(60), pytest.raises(RuntimeError, match="already in use"):
+        rtde_control.RTDEControlInterface(emulator.host, 125.0)
+    assert emulator.status()["in_use_refusals"] == before + 1
+    since = emulator.status()["commands_total"]
+    assert ctrl.isProgramRunning()
+    assert ctrl.servoL(recv.getActualTCPPose(), 0.0, 0.0, 0.008, 0.1, 300.0) is True
+    ctrl.servoStop(10.0)
+    assert [c["name"] for c in _new_commands(emulator, since)] == ["servoL", "servoStop"]
+
+
+def test_trigger_protective_stop_reaches_the_safety_state_and_halts_the_script(emulator, clients):
+    """Last in this module: it leaves the shared controller protectively stopped."""
+    recv, ctrl = clients
+    since = emulator.status()["commands_total"]
+    assert ctrl.triggerProtectiveStop() is True
+    deadline = time.monotonic() + 5
+    while not recv.isProtectiveStopped() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert recv.isProtectiveStopped() and recv.getSafetyMode() == 3
+    assert recv.getSafetyStatusBits() == 0x404 and recv.getRuntimeState() == 4  # program paused
+    assert [c["name"] for c in emulator.commands(since)] == ["triggerProtectiveStop"]
+    before = np.array(recv.getActualTCPPose())
+    ctrl.servoL((before + [0, 0.05, 0, 0, 0, 0]).tolist(), 0.0, 0.0, 0.008, 0.1, 300.0)
+    time.sleep(0.3)
+    np.testing.assert_allclose(recv.getActualTCPPose(), before, atol=1e-4)  # a paused script moves nothing

@@ -49,7 +49,12 @@ class UR10eConfig(RobotConfig):
 
     # --- rtde backend ----------------------------------------------------------------------------------------
     robot_ip: str = "192.168.1.10"
+    # RTDE output rate asked of the controller (500 Hz on e-Series; a CB3 controller is limited to 125 Hz).
     rtde_frequency: float = 500.0
+    # Bound on each blocking exchange with the controller (version handshake, dashboard request, stopScript).
+    rtde_timeout_s: float = 5.0
+    # Bound on ur_rtde's connect (it uploads and starts its control script) and on the script starting.
+    rtde_connect_timeout_s: float = 30.0
     servo_lookahead_s: float = 0.1
     servo_gain: float = 300.0
     # Real cameras, e.g. {"front": RealSenseCameraConfig(serial_number_or_name=..., use_depth=True, ...)}.

@@ -1,14 +1,18 @@
 """The real UR-10e through UR's RTDE interface (the `ur_rtde` package), plus AG-95 and RealSense cameras.
 
-Only the calls listed here touch the controller, so the backend can later be pointed at an RTDE emulator on
-loopback (`robot_ip="127.0.0.1"`) without changes. `ur_rtde` is imported when the backend is built, not when
-the plugin is imported: every `lerobot-*` command imports this plugin, and most machines have no arm.
+ur_rtde is treated as untrusted (see :mod:`.rtde_session`): it runs in a child process, and the driver
+believes the controller's state, not return values. Before and after every command it checks the newest
+state: both interfaces connected, the controller's timestamp still advancing, no protective / emergency stop,
+a safety mode in which the arm may move, and the control script running. No call in the control loop waits
+on ur_rtde; commands are sent without blocking and refusals come back as events. `ur_rtde` is imported (by the
+child) only when the backend connects: every `lerobot-*` command imports this plugin, and most machines have no
+arm.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -18,6 +22,7 @@ from .backend import ArmState
 from .camera_info import CameraInfo, pose_matrix
 from .config_ur10e import UR10eConfig
 from .kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
+from .rtde_session import DashboardClient, RtdeSession, SessionError, probe_controller_version
 from .safety import RobotFaultError
 
 logger = logging.getLogger(__name__)
@@ -39,6 +44,13 @@ _SAFETY_MODE_NAMES = {
     12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
     13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
 }
+_STATUS_BIT_PROGRAM_RUNNING = 1 << 1  # robot_status_bits
+_RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
+
+
+def _script_running(values: dict[str, Any]) -> bool:
+    """Both views agree that ur_rtde's control script runs: the controller's status bits and the client's own."""
+    return bool(int(values.get("robot_status_bits", 0)) & _STATUS_BIT_PROGRAM_RUNNING and values.get("program_running"))
 
 
 def import_ur_rtde() -> tuple[Any, Any]:
@@ -60,34 +72,67 @@ class RtdeBackend:
 
     def __init__(self, config: UR10eConfig):
         self.config = config
-        self._rtde_control, self._rtde_receive = import_ur_rtde()
-        self.ctrl: Any = None
-        self.recv: Any = None
+        import_ur_rtde()  # fail early, with the install hint, when the package is missing
+        self.session: RtdeSession | None = None
+        self.controller_version: tuple[int, int, int, int] | None = None
         self.gripper: Any = None
         self.cameras: dict[str, Any] = {}
         self._camera_infos: dict[str, CameraInfo] = {}
-        self._lock = threading.Lock()  # ur_rtde's control interface is not safe to call from two threads
         self._last_gripper_m = 0.0
+        self._failures_seen = 0
+        # The controller's state may stall this long (a network blip) before the controller counts as lost.
+        self.stale_after_s = config.safety.watchdog_timeout_s if config.safety.watchdog_timeout_s > 0 else 0.5
 
     @property
     def is_connected(self) -> bool:
-        return bool(self.ctrl is not None and self.recv is not None and self.recv.isConnected())
+        s = self.session
+        if s is None or s.dead is not None:
+            return False
+        v = s.snapshot.values
+        return bool(v.get("recv_connected") and v.get("ctrl_connected"))
 
     def connect(self) -> None:
-        ip, freq = self.config.robot_ip, self.config.rtde_frequency
+        ip = self.config.robot_ip
+        self.controller_version = probe_controller_version(ip, timeout_s=self.config.rtde_timeout_s)
+        major = self.controller_version[0]
+        frequency = float(self.config.rtde_frequency)
+        if major <= 3:
+            frequency = min(frequency, 125.0)  # a CB3 controller streams RTDE at 125 Hz at most
+        session = RtdeSession(ip, frequency, snapshot_period_s=min(0.01, 0.5 / self.config.control_hz))
         try:
-            self.recv = self._rtde_receive.RTDEReceiveInterface(ip, freq)
-            self.ctrl = self._rtde_control.RTDEControlInterface(ip, freq)
-        except RuntimeError as e:
-            self._close_rtde()
+            session.start(timeout_s=self.config.rtde_connect_timeout_s)
+        except SessionError as e:
             raise ConnectionError(
-                f"Could not open RTDE to the UR controller at {ip}: {e}. Check the network, that the robot is "
-                "powered on, brakes released, in Remote Control mode, and that no other program holds RTDE."
+                f"Could not open RTDE to the UR controller at {ip} ({self._version_str()}): {e}. Check the network, "
+                "that the robot is powered on, brakes released, in Remote Control mode, and that no other program "
+                "holds RTDE (a second control client is refused with IN_USE)."
             ) from e
-        self.ctrl.setTcp([0.0, 0.0, float(self.config.tcp_offset), 0.0, 0.0, 0.0])
-        self.check_health()
+        self.session = session
+        try:
+            # ur_rtde 1.6.5 does not upload its script to PolyScope X: only a program started there could run it.
+            wait_s = min(self.config.rtde_connect_timeout_s, 5.0) if major >= 10 else self.config.rtde_connect_timeout_s
+            if not session.wait_for(_script_running, timeout_s=wait_s):
+                hint = (
+                    " ur_rtde 1.6.5 does not upload its control script to a PolyScope X (10.x) controller (its "
+                    "constructor returns without it); use an e-Series 5.x controller or URSim 5.x."
+                    if major >= 10
+                    else " Check the teach pendant for a popup or a protective stop, then reconnect."
+                )
+                raise ConnectionError(
+                    f"UR controller at {ip} ({self._version_str()}): ur_rtde's control script is not running "
+                    f"{wait_s:.0f} s after connecting.{hint}"
+                )
+            session.send("setTcp", [0.0, 0.0, float(self.config.tcp_offset), 0.0, 0.0, 0.0])
+            self.check_health()
+        except BaseException:
+            self._close_session()
+            raise
         self._connect_gripper()
         self._connect_cameras()
+
+    def _version_str(self) -> str:
+        v = self.controller_version
+        return "controller version " + ".".join(map(str, v)) if v else "controller version unknown"
 
     def _connect_gripper(self) -> None:
         if self.config.gripper == "none":
@@ -134,15 +179,23 @@ class RtdeBackend:
         )
 
     def disconnect(self) -> None:
+        healthy = (
+            self.session is not None
+            and self.session.dead is None
+            and self.is_connected
+            and time.monotonic() - self.session.snapshot.fresh_at <= self.stale_after_s
+        )
         try:
-            if self.ctrl is not None:
-                with self._lock:
-                    try:
-                        self.ctrl.servoStop()
-                    finally:
-                        self.ctrl.stopScript()
+            if healthy:
+                self._send_stops()
+                try:
+                    self.session.call("stopScript", timeout_s=self.config.rtde_timeout_s)
+                except SessionError as e:
+                    logger.warning("UR10e: stopping the control script failed: %s", e)
         finally:
-            self._close_rtde()
+            # A lost controller has nothing to hear: end the client at once instead of waiting on ur_rtde.
+            # ur_rtde's own disconnect can take seconds; the script is already stopped, so do not wait long.
+            self._close_session(timeout_s=1.0 if healthy else 0.0)
             if self.gripper is not None:
                 self.gripper.disconnect()
                 self.gripper = None
@@ -151,34 +204,34 @@ class RtdeBackend:
                     cam.disconnect()
             self.cameras = {}
 
-    def _close_rtde(self) -> None:
-        for iface in (self.ctrl, self.recv):
-            if iface is not None:
-                try:
-                    iface.disconnect()
-                except Exception:  # noqa: BLE001 - best effort while tearing down
-                    logger.exception("RTDE disconnect failed")
-        self.ctrl = self.recv = None
+    def _close_session(self, timeout_s: float = 3.0) -> None:
+        if self.session is not None:
+            self.session.close(timeout_s)
+        self.session = None
 
     # -- ArmBackend -------------------------------------------------------------------------------------------
     def read_state(self) -> ArmState:
-        q = np.asarray(self.recv.getActualQ(), dtype=np.float64)
-        pose = pose6_from_rotvec_pose(self.recv.getActualTCPPose())
+        v = self._values()
+        q = np.asarray(v["q"], dtype=np.float64)
+        pose = pose6_from_rotvec_pose(v["tcp"])
         if self.gripper is not None:
             self._last_gripper_m = float(self.gripper.read_status().opening_m)
         return ArmState(q=q, tcp_pose=pose, gripper_opening_m=self._last_gripper_m)
 
+    def _values(self) -> dict[str, Any]:
+        if self.session is None:
+            raise RobotFaultError("UR10e (rtde): not connected; call connect() first.")
+        return self.session.snapshot.values
+
     def servo_tcp(self, pose6: np.ndarray) -> None:
+        self.check_health()
         target = rotvec_pose_from_pose6(pose6)
         dt = 1.0 / self.config.control_hz
-        with self._lock:
-            ok = self.ctrl.servoL(target, 0.0, 0.0, dt, self.config.servo_lookahead_s, self.config.servo_gain)
-        if ok is False:
-            self.check_health()
-            raise RobotFaultError(
-                "UR10e rejected servoL (the control script is not running). Check the teach pendant for a "
-                "protective stop or a program stop, then reconnect."
-            )
+        try:
+            self.session.send("servoL", target, 0.0, 0.0, dt, self.config.servo_lookahead_s, self.config.servo_gain)
+        except SessionError as e:
+            raise self._lost(str(e)) from e
+        self.check_health()
 
     def set_gripper(self, opening_m: float) -> None:
         if self.gripper is not None:
@@ -187,35 +240,114 @@ class RtdeBackend:
             self.gripper.set_opening(opening_m / AG95_STROKE_M)
 
     def stop(self) -> None:
-        if self.ctrl is None:
+        """Stop the arm: servoStop ends servoL and speedStop ends speed mode (servoStop alone does not)."""
+        if self.session is None or self.session.dead is not None:
             return
-        with self._lock:
-            try:
-                self.ctrl.servoStop()
-            finally:
-                self.ctrl.speedStop()
+        if not self.session.snapshot.values.get("program_running"):
+            return  # no script to command: the controller already holds the arm (protective stop, stopped program)
+        self._send_stops()
+
+    def _send_stops(self) -> None:
+        try:
+            self.session.send("servoStop", 10.0)
+            self.session.send("speedStop", 10.0)
+        except SessionError:
+            pass  # the controller is gone: its own watchdog stops the arm; check_health reports it
+
+    def _lost(self, why: str) -> RobotFaultError:
+        return RobotFaultError(
+            f"UR10e (rtde): lost the controller at {self.config.robot_ip}: {why}. Motion commands have stopped; "
+            "check the network cable and the controller, then reconnect."
+        )
 
     def check_health(self) -> None:
-        if self.recv is None or self.ctrl is None:
+        s = self.session
+        if s is None:
             raise RobotFaultError("UR10e (rtde): not connected; call connect() first.")
-        if not self.recv.isConnected() or not self.ctrl.isConnected():
-            raise RobotFaultError(
-                f"UR10e (rtde): lost the RTDE connection to {self.config.robot_ip}. Motion has been stopped; "
-                "check the network cable / controller, then reconnect."
-            )
-        if self.recv.isEmergencyStopped():
+        if s.dead is not None:
+            raise self._lost(f"the ur_rtde client process ended ({s.dead})")
+        v = s.snapshot.values
+        if "error" in v:
+            raise self._lost(f"reading its state failed ({v['error']})")
+        if not v.get("recv_connected") or not v.get("ctrl_connected"):
+            raise self._lost("the RTDE connection is closed")
+        age = time.monotonic() - s.snapshot.fresh_at
+        if age > self.stale_after_s:
+            raise self._lost(f"no new state from it for {age:.2f} s (limit {self.stale_after_s:.2f} s)")
+        if v.get("emergency_stopped"):
             raise RobotFaultError("UR10e (rtde): emergency stop is active. Release it on the pendant and reconnect.")
-        if self.recv.isProtectiveStopped():
+        if v.get("protective_stopped"):
             raise RobotFaultError(
-                "UR10e (rtde): protective stop. Clear the cause, unlock the protective stop on the pendant, then "
-                "reconnect."
+                f"UR10e (rtde): protective stop (safety status bits {v.get('safety_status_bits', 0):#x}): the "
+                "controller stopped the arm (a collision, a limit, or a triggered stop). Clear the cause, then call "
+                "robot.recover() (it unlocks the stop once the controller allows it, 5 s after it occurred, and "
+                "restarts the control script) or unlock it on the pendant and reconnect."
             )
-        mode = int(self.recv.getSafetyMode())
+        mode = int(v.get("safety_mode", 1))
         if mode not in _SAFETY_MODES_OK:
             raise RobotFaultError(
                 f"UR10e (rtde): safety mode is {_SAFETY_MODE_NAMES.get(mode, mode)}; the arm cannot move. "
                 "Resolve it on the teach pendant, then reconnect."
             )
+        # The receive interface's status bits, not the control interface's isProgramRunning(): they arrive in the
+        # same RTDE package as the safety bits above, so a protective stop is named as such, not as a stopped
+        # program seen a few milliseconds earlier on the other connection.
+        if not int(v.get("robot_status_bits", 0)) & _STATUS_BIT_PROGRAM_RUNNING:
+            state = _RUNTIME_STATE_NAMES.get(int(v.get("runtime_state", -1)), v.get("runtime_state"))
+            raise RobotFaultError(
+                f"UR10e (rtde): ur_rtde's control script is not running on the controller (runtime state "
+                f"{state}); a program was stopped or paused from the pendant or the dashboard. Call "
+                "robot.recover() to re-upload it, or reconnect."
+            )
+        if len(s.failures) > self._failures_seen:
+            method, value = s.failures[-1]
+            self._failures_seen = len(s.failures)
+            raise RobotFaultError(
+                f"UR10e (rtde): the controller refused {method} ({value!r}) although its state looked healthy. "
+                "Check the teach pendant, then reconnect."
+            )
+
+    def recover(self, timeout_s: float = 20.0) -> None:
+        """Unlock a protective stop and restart the control script; returns once the script runs again.
+
+        The controller refuses to unlock during the first 5 s after a protective stop, so this retries the
+        unlock until it is accepted or `timeout_s` passes. Then a paused program is stopped, the script is
+        re-uploaded, and this waits (bounded) until the controller reports it running.
+        """
+        s = self.session
+        if s is None or s.dead is not None or not self.is_connected:
+            raise self._lost("cannot recover without a connection; reconnect instead")
+        if self.controller_version and self.controller_version[0] >= 10:
+            raise RobotFaultError("UR10e (rtde): PolyScope X has no dashboard server; recover on the pendant.")
+        dash = DashboardClient(self.config.robot_ip, timeout_s=self.config.rtde_timeout_s)
+        deadline = time.monotonic() + timeout_s
+        if s.snapshot.values.get("protective_stopped"):
+            reply = ""
+            while time.monotonic() < deadline:
+                reply = dash.request("unlock protective stop")
+                if reply.startswith("Protective stop releasing"):
+                    break
+                time.sleep(0.5)
+            else:
+                raise RobotFaultError(f"UR10e (rtde): the protective stop was not unlocked within {timeout_s:.0f} s: {reply!r}")
+            dash.request("close safety popup")
+            if not s.wait_for(lambda v: not v.get("protective_stopped"), timeout_s=max(0.1, deadline - time.monotonic())):
+                raise RobotFaultError("UR10e (rtde): the controller still reports a protective stop after the unlock.")
+        if not _script_running(s.snapshot.values):
+            if int(s.snapshot.values.get("runtime_state", 1)) == 4:  # paused: end it so the script can be uploaded
+                dash.request("stop")
+            s.wait_for(lambda v: int(v.get("runtime_state", 1)) != 4, timeout_s=2.0)
+            try:
+                s.call("reuploadScript", timeout_s=max(0.1, min(5.0, deadline - time.monotonic())))
+            except SessionError as e:
+                raise RobotFaultError(f"UR10e (rtde): re-uploading the control script failed: {e}") from e
+            if not s.wait_for(_script_running, timeout_s=max(0.1, deadline - time.monotonic())):
+                raise RobotFaultError(
+                    f"UR10e (rtde): the control script was re-uploaded but is not running within {timeout_s:.0f} s."
+                )
+            s.send("setTcp", [0.0, 0.0, float(self.config.tcp_offset), 0.0, 0.0, 0.0])
+        self._failures_seen = len(s.failures)
+        self.check_health()
 
     def read_cameras(self) -> dict[str, tuple[np.ndarray | None, np.ndarray | None]]:
         frames: dict[str, tuple[np.ndarray | None, np.ndarray | None]] = {}

@@ -48,6 +48,7 @@ class SafetyCounters:
     step_clips: int = 0
     watchdog_stops: int = 0
     rejected_actions: int = 0
+    gripper_clips: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -150,6 +151,11 @@ class Watchdog:
 
     def kick(self) -> None:
         self._last_kick = time.monotonic()
+        self._tripped = False
+
+    def clear_fault(self) -> None:
+        """Forget a reported fault (after the caller recovered the arm) so health checks resume."""
+        self._fault = None
         self._tripped = False
 
     def raise_if_faulted(self) -> None:

@@ -177,6 +177,13 @@ class SimBackend:
         with self._lock:
             self._q_des = q
 
+    def servo_joints(self, q: np.ndarray) -> None:
+        """Track these joint positions (the twin of servoJ / moveJ), clipped to the joint limits."""
+        lo = np.array([lim[0] for lim in JOINT_LIMITS])
+        hi = np.array([lim[1] for lim in JOINT_LIMITS])
+        with self._lock:
+            self._q_des = np.clip(np.asarray(q, dtype=np.float64), lo, hi)
+
     def set_gripper(self, opening_m: float) -> None:
         with self._lock:
             self._gripper_des = float(opening_m)

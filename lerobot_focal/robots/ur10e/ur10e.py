@@ -177,8 +177,10 @@ class UR10e(Robot):
     def disconnect(self) -> None:
         if self.watchdog is not None:
             self.watchdog.stop()
+            self.safety.counters.watchdog_stops += self.watchdog.trips  # keep the count past this connection
             self.watchdog = None
         backend, self.backend = self.backend, None
+        self._fault_reported = False
         try:
             backend.stop()
         except Exception:  # noqa: BLE001 - the connection may already be gone; disconnect anyway
@@ -198,8 +200,24 @@ class UR10e(Robot):
         """Clipped / rejected commands and watchdog stops since construction (for logs and tests)."""
         counters = self.safety.counters.as_dict()
         if self.watchdog is not None:
-            counters["watchdog_stops"] = self.watchdog.trips
+            counters["watchdog_stops"] += self.watchdog.trips
         return counters
+
+    def recover(self) -> None:
+        """Bring the arm back after a protective stop or a stopped control script (rtde backend).
+
+        Unlocks the protective stop as soon as the controller allows it (5 s after it occurred), re-uploads
+        ur_rtde's control script and returns once it runs; the next command starts from the measured pose.
+        """
+        if self.backend is None:
+            raise RuntimeError(f"{self} is not connected; call connect() first.")
+        recover = getattr(self.backend, "recover", None)
+        if recover is None:
+            raise RobotFaultError(f"{self}: the {self.config.backend} backend has nothing to recover; reconnect.")
+        recover()
+        self.watchdog.clear_fault()
+        self._fault_reported = False
+        self._target = None
 
     def _ensure_healthy(self) -> None:
         """Raise RobotFaultError (after stopping the arm) if the backend or the watchdog saw a fault."""
@@ -207,9 +225,23 @@ class UR10e(Robot):
             self.watchdog.raise_if_faulted()
             self.backend.check_health()
         except RobotFaultError:
-            self._fault_reported = True
-            self._stop_quietly()
+            self._on_fault()
             raise
+
+    def _on_fault(self) -> None:
+        """Stop the arm; when the controller is gone, also release the backend (its client, the watchdog)."""
+        self._fault_reported = True
+        self._stop_quietly()
+        if self.backend is not None and not self.backend.is_connected:
+            if self.watchdog is not None:
+                self.watchdog.stop()
+                self.safety.counters.watchdog_stops += self.watchdog.trips
+                self.watchdog = None
+            backend, self.backend = self.backend, None
+            try:
+                backend.disconnect()
+            except Exception:  # noqa: BLE001 - already reporting the fault
+                logger.exception("Releasing the lost UR10e backend failed")
 
     def _stop_quietly(self) -> None:
         self._target = None
@@ -247,8 +279,35 @@ class UR10e(Robot):
         return depth_to_pointcloud(depth, infos[name], c.pointcloud_min, c.pointcloud_max, c.pointcloud_num_points)
 
     # -- action -----------------------------------------------------------------------------------------------
+    def _refuse(self, message: str) -> UnsafeActionError:
+        """Count a refused action and stop the arm: a caller that sends garbage must not leave it moving."""
+        self.safety.counters.rejected_actions += 1
+        self._stop_quietly()
+        return UnsafeActionError(message)
+
+    def _number(self, key: str, value: Any) -> float:
+        """`value` as a float if it is one number (Python/numpy/torch scalar or a one-element array)."""
+        if isinstance(value, (str, bytes)) or value is None:
+            raise self._refuse(f"UR10e action {key!r} must be a number, got {type(value).__name__} {value!r}.")
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self._refuse(f"UR10e action {key!r} must be a number, got {type(value).__name__} {value!r}.") from None
+        if arr.size != 1:
+            raise self._refuse(
+                f"UR10e action {key!r} must be one number, got an array of shape {arr.shape}; send one value per "
+                f"key ({', '.join(self.action_features)})."
+            )
+        return float(arr.reshape(-1)[0])
+
     def _parse(self, action: RobotAction) -> tuple[str, np.ndarray, float | None]:
-        values = {k: float(v) for k, v in action.items() if k in (*VELOCITY_KEYS, *ABSOLUTE_KEYS, GRIPPER_KEY)}
+        known = (*VELOCITY_KEYS, *ABSOLUTE_KEYS, GRIPPER_KEY)
+        if not any(k in action for k in known):
+            raise self._refuse(
+                f"UR10e action has none of the robot's keys (got {sorted(map(str, action))}); send "
+                f"{list(self.action_features)} (velocity mode) or {list(ABSOLUTE_KEYS)} (absolute targets)."
+            )
+        values = {k: self._number(k, v) for k, v in action.items() if k in known}
         try:
             self.safety.check_finite(values)
         except UnsafeActionError:
@@ -257,12 +316,14 @@ class UR10e(Robot):
         has_abs = any(k in values for k in ABSOLUTE_KEYS)
         has_vel = any(k in values for k in VELOCITY_KEYS)
         if has_abs and has_vel:
-            raise ValueError("UR10e action mixes absolute (ee_x.pos ...) and velocity (ee_x.vel ...) keys; send one kind.")
+            raise self._refuse(
+                "UR10e action mixes absolute (ee_x.pos ...) and velocity (ee_x.vel ...) keys; send one kind."
+            )
         gripper = values.get(GRIPPER_KEY)
         if has_abs:
             missing = [k for k in ABSOLUTE_KEYS if k not in values]
             if missing:
-                raise ValueError(f"UR10e absolute action is missing {missing}; send all of {list(ABSOLUTE_KEYS)}.")
+                raise self._refuse(f"UR10e absolute action is missing {missing}; send all of {list(ABSOLUTE_KEYS)}.")
             return "absolute", np.array([values[k] for k in ABSOLUTE_KEYS]), gripper
         dt = 1.0 / self.config.control_hz
         return "delta", np.array([values.get(k, 0.0) * dt for k in VELOCITY_KEYS]), gripper
@@ -295,10 +356,13 @@ class UR10e(Robot):
             self.backend.servo_tcp(safe)
             if gripper is not None:
                 self._gripper_cmd = float(np.clip(gripper, 0.0, 1.0))
+                if self._gripper_cmd != gripper:
+                    self.safety.counters.gripper_clips += 1
+                    logger.warning("gripper.pos %s outside [0, 1] (opening fraction), clipped to %s", gripper,
+                                   self._gripper_cmd)
                 self.backend.set_gripper(self._gripper_cmd * AG95_MAX_OPENING_M)
         except RobotFaultError:
-            self._fault_reported = True
-            self._stop_quietly()
+            self._on_fault()
             raise
         self.watchdog.kick()
 
