@@ -1,6 +1,6 @@
 """Inference latency and training-step cost of `focal` against its own U-Net and LeRobot's `diffusion`.
 
-    lerobot-focal-bench speed                       # CPU preset and paper size, this machine
+    lerobot-focal-bench speed                       # CPU preset and paper size, on the machine it runs on
     lerobot-focal-bench speed --sizes cpu --device cuda
 
 What is compared, at equal U-Net size (down_dims, kernel, groups, n_obs = 2; horizon 12 for focal, 16 for diffusion,

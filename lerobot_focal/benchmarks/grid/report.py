@@ -180,7 +180,7 @@ def write_report(out_dir: Path) -> Path:
            f"Score = mean of the top-{preset['top_k']} of {preset['steps'] // preset['eval_every']} evaluations "
            f"({preset['eval_episodes']} episodes every {preset['eval_every']} steps), then mean ± std over seeds "
            f"(success in %; one evaluation episode is {100 / preset['eval_episodes']:.0f} points). Wall times are "
-           "those of this machine while the grid ran, other jobs included.", ""]
+           "those of the machine the grid ran on, other jobs included.", ""]
     if failed:
         md += [f"**{len(failed)} runs failed** and are not in the tables: "
                + ", ".join(sorted(r["key"] for r in failed)), ""]

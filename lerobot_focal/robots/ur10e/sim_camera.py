@@ -1,7 +1,7 @@
 """A depth + colour camera for the MuJoCo twin made by casting one ray per pixel.
 
-MuJoCo's offscreen renderer needs an OpenGL context; this machine has no EGL device, and OSMesa (software GL)
-costs ~166 ms per 128x128 frame (SPEC section 4). `mj_multiRay` gives exact z-depth in a few tens of ms and
+MuJoCo's offscreen renderer needs an OpenGL context; without a GPU there is often no EGL device, and OSMesa
+(software GL) costs ~166 ms per 128x128 frame. `mj_multiRay` gives exact z-depth in a few tens of ms and
 colour comes almost for free from the hit geom's rgba, shaded with normals estimated from the depth image.
 Colour is therefore flat-shaded (no textures, shadows or specular), which is enough for a visual policy to
 tell objects apart; point clouds, the paper's main modality, are exact.
