@@ -1,7 +1,6 @@
 """lerobot-focal-collect as a real process: MetaWorld experts -> LeRobotDataset on disk; interrupt + resume."""
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from lerobot_focal.robots.ur10e import UR10e, UR10eConfig, UnsafeActionError  # noqa: E402
+from lerobot_focal.robots.ur10e import UR10e, UR10eConfig  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import SafetyConfig  # noqa: E402
 
 

@@ -22,7 +22,7 @@ from lerobot_focal.robots.ur10e import UR10e  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError  # noqa: E402
 
-from .ur_emulator_support import free_loopback_host, rtde_config  # noqa: E402
+from .ur_emulator_support import free_loopback_host, rtde_config, wait_still  # noqa: E402
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
@@ -50,15 +50,6 @@ def _drive(robot, action: dict, n: int) -> None:
     for _ in range(n):
         robot.send_action(action)
         time.sleep(1 / robot.config.control_hz)
-
-
-def _wait_still(emulator, timeout_s: float = 5.0) -> float:
-    deadline = time.monotonic() + timeout_s
-    speed = emulator.arm_state()[2]
-    while speed > 1e-3 and time.monotonic() < deadline:
-        time.sleep(0.05)
-        speed = emulator.arm_state()[2]
-    return speed
 
 
 def test_robot_moves_the_twin_through_the_real_client(robot, emulator):
@@ -89,7 +80,7 @@ def test_stop_after_velocity_motion_sends_speedStop_and_the_arm_holds(robot, emu
         names = [c["name"] for c in emulator.commands(since)]
         time.sleep(0.02)
     assert names[-2:] == ["servoStop", "speedStop"], names
-    assert _wait_still(emulator) < 1e-3
+    assert wait_still(emulator) < 1e-3
 
 
 def test_controller_killed_mid_episode_raises_lost_the_controller_at_once(tmp_path):
@@ -124,7 +115,7 @@ def test_ur_rtde_client_crash_is_a_clear_fault_not_a_crash_of_the_robot_process(
         for _ in range(100):
             robot.send_action({"ee_x.vel": -0.05})
             time.sleep(1 / robot.config.control_hz)
-    assert _wait_still(emulator) < 1e-3  # the controller holds the arm once servoL stops arriving
+    assert wait_still(emulator) < 1e-3  # the controller holds the arm once servoL stops arriving
     robot.connect()  # and a fresh client comes up
     _drive(robot, {"ee_x.vel": 0.05}, 3)
 
@@ -141,7 +132,7 @@ def test_protective_stop_stops_motion_names_the_cause_and_recovers(emulator, tmp
         emulator.protective_stop("collision")
         with pytest.raises(RobotFaultError, match=r"protective stop \(safety status bits 0x404\).*recover"):
             _drive(robot, {"ee_y.vel": 0.1}, 50)
-        assert _wait_still(emulator) < 1e-3  # motion stopped
+        assert wait_still(emulator) < 1e-3  # motion stopped
         t_recover = time.monotonic()
         robot.recover()
         assert time.monotonic() - t_stop >= 5.0  # it could not come back inside the unlock window

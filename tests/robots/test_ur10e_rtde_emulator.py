@@ -21,7 +21,7 @@ pytest.importorskip("mujoco")
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 
-from .ur_emulator_support import free_loopback_host, hard_deadline  # noqa: E402
+from .ur_emulator_support import free_loopback_host, hard_deadline, wait_still  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -44,15 +44,6 @@ def clients(emulator):
 
 def _new_commands(emulator, since: int) -> list[dict]:
     return emulator.commands(since)
-
-
-def _wait_still(emulator, timeout_s: float = 5.0) -> float:
-    deadline = time.monotonic() + timeout_s
-    speed = emulator.arm_state()[2]
-    while speed > 1e-3 and time.monotonic() < deadline:
-        time.sleep(0.05)
-        speed = emulator.arm_state()[2]
-    return speed
 
 
 def test_real_receive_interface_reads_the_twin(emulator, clients):
@@ -97,7 +88,7 @@ def test_servoL_registers_carry_pose_in_base_frame_metres_and_servo_parameters(e
     assert (d[6], d[7], d[8], d[9], d[10]) == pytest.approx((0.25, 1.2, 0.008, 0.1, 300.0))
     assert cmds[-1]["name"] == "servoStop" and cmds[-1]["doubles"][0] == pytest.approx(10.0)
     # The twin went where the registers said, in metres: the same base frame the receive interface reports.
-    _wait_still(emulator)
+    wait_still(emulator)
     np.testing.assert_allclose(recv.getActualTCPPose()[:3], target[:3], atol=3e-3)
 
 
@@ -128,7 +119,7 @@ def test_speedL_is_stopped_by_speedStop_not_by_servoStop(emulator, clients):
     assert emulator.arm_state()[2] > 0.01  # still moving: servoStop does not end speed mode
     y0 = recv.getActualTCPPose()[1]
     ctrl.speedStop(10.0)
-    assert _wait_still(emulator) < 1e-3
+    assert wait_still(emulator) < 1e-3
     y1 = recv.getActualTCPPose()[1]
     time.sleep(0.3)
     assert abs(recv.getActualTCPPose()[1] - y1) < 1e-3 and y1 < y0

@@ -10,6 +10,7 @@ import contextlib
 import faulthandler
 import random
 import socket
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -66,3 +67,13 @@ def hard_deadline(seconds: float) -> Iterator[None]:
         yield
     finally:
         faulthandler.cancel_dump_traceback_later()
+
+
+def wait_still(emulator, timeout_s: float = 5.0) -> float:
+    """Wait (bounded) until the emulated arm stops; returns its last TCP speed (m/s)."""
+    deadline = time.monotonic() + timeout_s
+    speed = emulator.arm_state()[2]
+    while speed > 1e-3 and time.monotonic() < deadline:
+        time.sleep(0.05)
+        speed = emulator.arm_state()[2]
+    return speed
