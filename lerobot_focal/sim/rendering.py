@@ -38,6 +38,9 @@ def make_rendering_cheap(mujoco_renderer) -> None:
     """
     import mujoco
 
+    # gymnasium's renderer has no public way to reach its offscreen viewer's scene flags; its private
+    # `_get_viewer` (creates the viewer once, returns it after) is the one hook. tests/envs/test_registration.py
+    # fails loudly if gymnasium renames it or changes its signature.
     viewer = mujoco_renderer._get_viewer(render_mode="rgb_array")
     viewer.scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
     viewer.scn.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0

@@ -91,3 +91,14 @@ def test_lerobots_metaworld_env_still_calls_the_hooks_focal_overrides():
         assert not np.allclose(a["environment_state"][4:7], b["environment_state"][4:7])
     finally:
         env.close()
+
+
+def test_gymnasiums_private_viewer_hook_used_for_cheap_rendering_is_there():
+    """`sim.rendering.make_rendering_cheap` reaches the offscreen viewer through gymnasium's private
+    `MujocoRenderer._get_viewer(render_mode=...)`; a rename in gymnasium must fail here, not in a user's eval."""
+    import inspect
+
+    pytest.importorskip("mujoco")
+    from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+    assert "render_mode" in inspect.signature(MujocoRenderer._get_viewer).parameters
