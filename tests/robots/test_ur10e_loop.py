@@ -199,6 +199,56 @@ def test_ctrl_c_during_recording_keeps_saved_episodes(tmp_path):
         assert item["observation.images.front"].shape == (3, 128, 128)
 
 
+def test_focal_trains_on_recorded_images_with_lerobots_image_transforms(recorded, tmp_path):
+    """The paper's robot saw RGB through random crops and colour jitter. LeRobot's dataset image transforms
+    (`--dataset.image_transforms.enable=true`: colour jitter, sharpness, affine) and focal's own random crop
+    train together in a real `lerobot-train` on the recorded sim-arm dataset."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.transforms.transforms import ImageTransforms, ImageTransformsConfig
+
+    _, root, _ = recorded
+    out = tmp_path / "train"
+    _run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=focal",
+            "--policy.down_dims=[16,32]",
+            "--policy.spatial_softmax_num_keypoints=8",
+            "--policy.push_to_hub=false",
+            "--policy.device=cpu",
+            "--policy.use_images=true",
+            "--policy.crop_shape=[112,112]",
+            "--policy.crop_is_random=true",
+            "--dataset.image_transforms.enable=true",
+            "--dataset.image_transforms.max_num_transforms=3",
+            f"--dataset.repo_id={REPO_ID}",
+            f"--dataset.root={root}",
+            "--steps=3",
+            "--batch_size=4",
+            "--num_workers=0",
+            "--save_freq=3",
+            "--log_freq=1",
+            "--wandb.enable=false",
+            f"--output_dir={out}",
+        ],
+        _env(tmp_path, pad=False),
+        tmp_path / "train.log",
+        timeout=600,
+    )
+    model = out / "checkpoints" / "last" / "pretrained_model"
+    train_cfg = json.loads((model / "train_config.json").read_text())
+    assert train_cfg["dataset"]["image_transforms"]["enable"] is True
+    cfg = json.loads((model / "config.json").read_text())
+    assert cfg["use_images"] is True and cfg["crop_shape"] == [112, 112] and cfg["crop_is_random"] is True
+    losses = [float(x) for x in re.findall(r"\bloss:([0-9.]+)", (tmp_path / "train.log").read_text())]
+    assert len(losses) == 3 and all(np.isfinite(losses))
+    # The transforms really act on the frames the policy trains on: the same item read twice differs.
+    ds = LeRobotDataset(REPO_ID, root=root, image_transforms=ImageTransforms(
+        ImageTransformsConfig(enable=True, max_num_transforms=3)))
+    a, b = ds[3]["observation.images.front"], ds[3]["observation.images.front"]
+    assert a.shape == (3, 128, 128) and not torch.equal(a, b)
+
+
 @pytest.mark.slow
 def test_train_focal_then_rollout_drives_the_sim_arm(recorded, tmp_path):
     tmp, root, _ = recorded
