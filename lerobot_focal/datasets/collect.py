@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.datasets import commit_log
 
 STATE_FILE = "focal_collect_state.json"
@@ -79,7 +80,7 @@ def dataset_features(cfg: CollectConfig) -> dict[str, dict]:
         },
     }
     if "pointcloud" in cfg.obs_types:
-        features["observation.pointcloud"] = {
+        features[OBS_POINTCLOUD] = {
             "dtype": "float32", "shape": (cfg.num_points, 3), "names": ["points", "xyz"],
         }
     if "env_state" in cfg.obs_types:
@@ -247,7 +248,7 @@ def rollout_expert(
         action = env.expert_action()
         frame = {"observation.state": obs["agent_pos"], "action": action}
         if "pointcloud" in obs:
-            frame["observation.pointcloud"] = obs["pointcloud"]
+            frame[OBS_POINTCLOUD] = obs["pointcloud"]
         if "environment_state" in obs:
             frame["observation.environment_state"] = obs["environment_state"]
         if want_pixels:

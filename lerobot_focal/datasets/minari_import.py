@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_focal.constants import OBS_POINTCLOUD
+
 
 @dataclass
 class ImportConfig:
@@ -57,7 +59,7 @@ def _features(obs_types, action_dim: int, num_points: int, image_hw: tuple[int, 
         "observation.state": {"dtype": "float32", "shape": (ADROIT_STATE_DIM,), "names": None},
     }
     if "pointcloud" in obs_types:
-        features["observation.pointcloud"] = {"dtype": "float32", "shape": (num_points, 3), "names": ["points", "xyz"]}
+        features[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (num_points, 3), "names": ["points", "xyz"]}
     if "pixels" in obs_types:
         features["observation.image"] = {"dtype": "image", "shape": (*image_hw, 3), "names": ["height", "width", "channels"]}
     return features
@@ -71,7 +73,7 @@ def replay_episode(env, seed: int, actions: np.ndarray, stored_obs: np.ndarray |
     for t, action in enumerate(actions):
         frame = {"observation.state": obs["agent_pos"], "action": np.asarray(action, dtype=np.float32)}
         if "pointcloud" in obs:
-            frame["observation.pointcloud"] = obs["pointcloud"]
+            frame[OBS_POINTCLOUD] = obs["pointcloud"]
         if want_pixels:
             frame["observation.image"] = obs["pixels"]
         frames.append(frame)

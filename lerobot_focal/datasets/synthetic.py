@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from lerobot_focal.constants import OBS_POINTCLOUD
+
 GOALS = np.array(
     [[0.6, 0.0, 0.2], [-0.6, 0.1, 0.3], [0.0, 0.6, 0.1], [0.1, -0.6, 0.4]], dtype=np.float32
 )
@@ -70,7 +72,7 @@ def features(spec: SyntheticSpec) -> dict:
         "action": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
     }
     if spec.with_pointcloud:
-        feats["observation.pointcloud"] = {"dtype": "float32", "shape": (spec.num_points, 3), "names": None}
+        feats[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (spec.num_points, 3), "names": None}
     if spec.with_image:
         s = spec.image_size
         feats["observation.images.front"] = {"dtype": "image", "shape": (s, s, 3), "names": ["height", "width", "channel"]}
@@ -88,7 +90,7 @@ def episode_arrays(spec: SyntheticSpec, episode: int) -> dict[str, np.ndarray]:
     state = np.concatenate([pos[:t], np.repeat(goal[None], t, 0), pos[:t] - goal], axis=1).astype(np.float32)
     out = {"observation.state": state, "action": pos[1:].astype(np.float32)}
     if spec.with_pointcloud:
-        out["observation.pointcloud"] = np.stack([_pointcloud(rng, goal, p, spec.num_points) for p in pos[:t]])
+        out[OBS_POINTCLOUD] = np.stack([_pointcloud(rng, goal, p, spec.num_points) for p in pos[:t]])
     if spec.with_image:
         out["observation.images.front"] = np.stack([_image(goal, p, spec.image_size) for p in pos[:t]])
     return out

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from lerobot_focal.console import console_script
+from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 from lerobot_focal.presets import preset_path
 
@@ -65,7 +66,7 @@ def rollout_errors(checkpoint: Path, spec: SyntheticSpec, episodes: int = 4) -> 
         policy.reset()
         actions = []
         for t in range(held.episode_length):
-            obs = {k: torch.from_numpy(arr[k][t])[None] for k in ("observation.state", "observation.pointcloud")}
+            obs = {k: torch.from_numpy(arr[k][t])[None] for k in ("observation.state", OBS_POINTCLOUD)}
             with torch.no_grad():
                 actions.append(post(policy.select_action(pre(obs)))[0].numpy())
         actions = np.stack(actions)
