@@ -127,6 +127,9 @@ class RayCastDepthCamera:
         self._active_mask: np.ndarray = np.zeros(0, dtype=bool)
         self._world_rays: np.ndarray = np.zeros((0, 3))
         self._static_full: np.ndarray = np.zeros(0)
+        self._static_gid: np.ndarray = np.zeros(0, dtype=np.int32)
+        #: Geom id seen by each pixel of the last frame (-1: nothing within max_depth); for colour shading.
+        self.last_geom_ids: np.ndarray = np.zeros((0, 0), dtype=np.int32)
 
     @property
     def width(self) -> int:
@@ -151,11 +154,16 @@ class RayCastDepthCamera:
             self._active_mask = _segment_hits_box(pose.position, self._world_rays, self.max_depth, self.skip_outside)
         self._active = np.flatnonzero(self._active_mask)
         self._static_full = np.full(self._world_rays.shape[0], np.inf)
-        self._static_full[self._active] = self._static_depth(pose.position, self._world_rays[self._active], data)
+        self._static_gid = np.full(self._world_rays.shape[0], -1, dtype=np.int32)
+        dist, gid = self._static_depth(pose.position, self._world_rays[self._active], data)
+        self._static_full[self._active] = dist
+        self._static_gid[self._active] = gid
         self._pose_key = key
 
-    def _static_depth(self, origin: np.ndarray, world_rays: np.ndarray, data: mujoco.MjData) -> np.ndarray:
-        """Per-ray distance to the static geoms alone (inf = none), with exact single-ray ``mj_ray``.
+    def _static_depth(
+        self, origin: np.ndarray, world_rays: np.ndarray, data: mujoco.MjData
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per-ray distance to the static geoms alone (inf = none) and the geom hit (-1), with exact ``mj_ray``.
 
         ``mj_multiRay`` culls geoms by azimuth/elevation bounds taken from the 8 corners of each geom's box;
         for large geoms seen from nearby (a table top below the camera) the interior of the geom reaches
@@ -165,8 +173,9 @@ class RayCastDepthCamera:
         model = self.model
         static = self._static_geoms
         out = np.full(world_rays.shape[0], np.inf)
+        hit = np.full(world_rays.shape[0], -1, dtype=np.int32)
         if not static.any():
-            return out
+            return out, hit
         scratch = mujoco.MjData(model)
         scratch.geom_xmat[:] = data.geom_xmat
         scratch.geom_xpos[:] = np.where(static[:, None], data.geom_xpos, _PARKED)  # park moving geoms far away
@@ -175,7 +184,8 @@ class RayCastDepthCamera:
             dist = mujoco.mj_ray(model, scratch, origin, vec, self._geomgroup, 1, -1, geomid)
             if geomid[0] >= 0 and static[geomid[0]]:
                 out[i] = dist
-        return out
+                hit[i] = geomid[0]
+        return out, hit
 
     def _dynamic_pixels(self, pose: CameraPose, data: mujoco.MjData) -> np.ndarray:
         """Flat mask of the pixels whose ray can hit a moving geom: the union, over moving geoms, of the image
@@ -239,10 +249,14 @@ class RayCastDepthCamera:
                 self._pool = ThreadPoolExecutor(max_workers=self._num_threads, thread_name_prefix="raycast")
             results = list(self._pool.map(self._cast, chunks, self._scratch, [origin] * self._num_threads))
         full = self._static_full.copy()
+        gid = self._static_gid.copy()
         for chunk, (geomid, dist) in zip(chunks, results, strict=True):
-            full[chunk] = np.minimum(np.where(geomid >= 0, dist, np.inf), full[chunk])
-        depth = np.where(full <= self.max_depth, full, 0.0).astype(np.float32)
-        return depth.reshape(self.height, self.width)
+            closer = (geomid >= 0) & (dist < full[chunk])
+            full[chunk] = np.where(closer, dist, full[chunk])
+            gid[chunk] = np.where(closer, geomid, gid[chunk])
+        seen = full <= self.max_depth
+        self.last_geom_ids = np.where(seen, gid, -1).reshape(self.height, self.width)
+        return np.where(seen, full, 0.0).astype(np.float32).reshape(self.height, self.width)
 
     @property
     def num_cast_rays(self) -> int:
