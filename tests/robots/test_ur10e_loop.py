@@ -84,6 +84,27 @@ def _tail(log: Path, n: int = 40) -> str:
     return "\n".join(log.read_text(errors="replace").splitlines()[-n:])
 
 
+def _train(root: Path, out: Path, tmp_path: Path, *policy_args: str, steps: int, log_freq: int) -> Path:
+    """A small `lerobot-train` run of focal on the recorded dataset; returns the last checkpoint."""
+    args = [
+        str(BIN / "lerobot-train"), "--policy.type=focal", "--policy.push_to_hub=false", "--policy.device=cpu",
+        *policy_args, f"--dataset.repo_id={REPO_ID}", f"--dataset.root={root}", f"--steps={steps}",
+        "--batch_size=4", "--num_workers=0", f"--save_freq={steps}", f"--log_freq={log_freq}",
+        "--wandb.enable=false", f"--output_dir={out}",
+    ]
+    _run(args, _env(tmp_path, pad=False), tmp_path / "train.log", timeout=600)
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def wait_for_episode(log: Path, proc: subprocess.Popen, episode: int, timeout_s: float) -> None:
+    """Wait (bounded) until `lerobot-record` logs that it records `episode` (the ones before it are saved)."""
+    deadline = time.monotonic() + timeout_s
+    while f"Recording episode {episode}" not in log.read_text(errors="replace"):
+        assert proc.poll() is None, _tail(log)
+        assert time.monotonic() < deadline, _tail(log)
+        time.sleep(0.2)
+
+
 def assert_frames_match_their_timestamps(ds, frames: list) -> None:
     """What a recording must contain whatever the machine's speed: per episode, frames numbered 0..n-1 with
     timestamps n / fps, none beyond the episode's time (a loaded host records fewer frames, never more)."""
@@ -175,12 +196,8 @@ def test_ctrl_c_during_recording_keeps_saved_episodes(tmp_path):
             _record_args(root, episodes=5), env=_env(tmp_path, pad=True), stdout=fh, stderr=subprocess.STDOUT
         )
     try:
-        deadline = time.monotonic() + 180
         # "Recording episode 2" is logged after episodes 0 and 1 were saved; interrupt episode 2 halfway.
-        while "Recording episode 2" not in log.read_text(errors="replace"):
-            assert proc.poll() is None, _tail(log)
-            assert time.monotonic() < deadline, _tail(log)
-            time.sleep(0.2)
+        wait_for_episode(log, proc, 2, timeout_s=180)
         time.sleep(EPISODE_S / 2)
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=60)
@@ -207,35 +224,12 @@ def test_focal_trains_on_recorded_images_with_lerobots_image_transforms(recorded
     from lerobot.transforms.transforms import ImageTransforms, ImageTransformsConfig
 
     _, root, _ = recorded
-    out = tmp_path / "train"
-    _run(
-        [
-            str(BIN / "lerobot-train"),
-            "--policy.type=focal",
-            "--policy.down_dims=[16,32]",
-            "--policy.spatial_softmax_num_keypoints=8",
-            "--policy.push_to_hub=false",
-            "--policy.device=cpu",
-            "--policy.use_images=true",
-            "--policy.crop_shape=[112,112]",
-            "--policy.crop_is_random=true",
-            "--dataset.image_transforms.enable=true",
-            "--dataset.image_transforms.max_num_transforms=3",
-            f"--dataset.repo_id={REPO_ID}",
-            f"--dataset.root={root}",
-            "--steps=3",
-            "--batch_size=4",
-            "--num_workers=0",
-            "--save_freq=3",
-            "--log_freq=1",
-            "--wandb.enable=false",
-            f"--output_dir={out}",
-        ],
-        _env(tmp_path, pad=False),
-        tmp_path / "train.log",
-        timeout=600,
+    model = _train(
+        root, tmp_path / "train", tmp_path, "--policy.down_dims=[16,32]", "--policy.spatial_softmax_num_keypoints=8",
+        "--policy.use_images=true", "--policy.crop_shape=[112,112]", "--policy.crop_is_random=true",
+        "--dataset.image_transforms.enable=true", "--dataset.image_transforms.max_num_transforms=3",
+        steps=3, log_freq=1,
     )
-    model = out / "checkpoints" / "last" / "pretrained_model"
     train_cfg = json.loads((model / "train_config.json").read_text())
     assert train_cfg["dataset"]["image_transforms"]["enable"] is True
     cfg = json.loads((model / "config.json").read_text())
@@ -260,29 +254,8 @@ def test_train_focal_then_rollout_drives_the_sim_arm(recorded, tmp_path):
         "observation.state": {"type": "STATE", "shape": [13]},
         "observation.images.front": {"type": "VISUAL", "shape": [3, 128, 128]},
     }
-    _run(
-        [
-            str(BIN / "lerobot-train"),
-            "--policy.type=focal",
-            "--policy.down_dims=[32,64,128]",
-            "--policy.push_to_hub=false",
-            "--policy.device=cpu",
-            f"--policy.input_features={json.dumps(features)}",
-            f"--dataset.repo_id={REPO_ID}",
-            f"--dataset.root={root}",
-            "--steps=10",
-            "--batch_size=4",
-            "--num_workers=0",
-            "--save_freq=10",
-            "--log_freq=5",
-            "--wandb.enable=false",
-            f"--output_dir={out}",
-        ],
-        _env(tmp_path, pad=False),
-        tmp_path / "train.log",
-        timeout=600,
-    )
-    model = out / "checkpoints" / "last" / "pretrained_model"
+    model = _train(root, out, tmp_path, "--policy.down_dims=[32,64,128]",
+                   f"--policy.input_features={json.dumps(features)}", steps=10, log_freq=5)
     assert (model / "model.safetensors").is_file()
     assert json.loads((model / "config.json").read_text())["type"] == "focal"
 
@@ -341,32 +314,9 @@ def test_focal_pointcloud_from_depth_trains_and_rolls_out_with_the_same_clouds(r
     cameras = tmp / "calibration" / "robots" / "ur10e" / "ur10e_cameras.json"
     shutil.copy(cameras, root / "meta" / "cameras.json")
     out = tmp_path / "train"
-    _run(
-        [
-            str(BIN / "lerobot-train"),
-            "--policy.type=focal",
-            "--policy.down_dims=[32,64,128]",
-            "--policy.push_to_hub=false",
-            "--policy.device=cpu",
-            "--policy.use_images=false",
-            f"--policy.pointcloud_from_depth={DEPTH_KEY}",
-            f"--policy.pointcloud_crop_min={CROP[0]}",
-            f"--policy.pointcloud_crop_max={CROP[1]}",
-            f"--dataset.repo_id={REPO_ID}",
-            f"--dataset.root={root}",
-            "--steps=6",
-            "--batch_size=4",
-            "--num_workers=0",
-            "--save_freq=6",
-            "--log_freq=3",
-            "--wandb.enable=false",
-            f"--output_dir={out}",
-        ],
-        _env(tmp_path, pad=False),
-        tmp_path / "train.log",
-        timeout=600,
-    )
-    model = out / "checkpoints" / "last" / "pretrained_model"
+    model = _train(root, out, tmp_path, "--policy.down_dims=[32,64,128]", "--policy.use_images=false",
+                   f"--policy.pointcloud_from_depth={DEPTH_KEY}", f"--policy.pointcloud_crop_min={CROP[0]}",
+                   f"--policy.pointcloud_crop_max={CROP[1]}", steps=6, log_freq=3)
     config = json.loads((model / "config.json").read_text())
     assert config["input_features"]["observation.pointcloud"] == {"type": "STATE", "shape": [512, 3]}
     assert config["pointcloud_from_depth"] == DEPTH_KEY

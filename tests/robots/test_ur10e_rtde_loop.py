@@ -33,6 +33,7 @@ from .test_ur10e_loop import (  # noqa: E402
     _record_args,
     _run,
     _tail,
+    wait_for_episode,
     assert_frames_match_their_timestamps,
 )
 from .ur_emulator_support import free_loopback_host  # noqa: E402
@@ -123,11 +124,7 @@ def test_controller_killed_mid_recording_keeps_every_finished_episode(tmp_path):
                 stderr=subprocess.STDOUT,
             )
         try:
-            deadline = time.monotonic() + 240
-            while "Recording episode 2" not in log.read_text(errors="replace"):
-                assert proc.poll() is None, _tail(log)
-                assert time.monotonic() < deadline, _tail(log)
-                time.sleep(0.2)
+            wait_for_episode(log, proc, 2, timeout_s=240)
             time.sleep(EPISODE_S / 2)
             emu.kill()  # the controller dies mid-episode
             proc.wait(timeout=120)
