@@ -96,6 +96,14 @@ def _train(root: Path, out: Path, tmp_path: Path, *policy_args: str, steps: int,
     return out / "checkpoints" / "last" / "pretrained_model"
 
 
+def _rollout(model: Path, robot: list[str], tmp_path: Path, log: Path) -> str:
+    """`lerobot-rollout` of a checkpoint on the arm for 4 s; returns its log."""
+    args = [str(BIN / "lerobot-rollout"), "--strategy.type=base", f"--policy.path={model}", "--policy.device=cpu",
+            *robot, f"--fps={FPS}", "--duration=4", "--task=move the arm"]
+    _run(args, _env(tmp_path, pad=False), log, timeout=300)
+    return log.read_text(errors="replace")
+
+
 def wait_for_episode(log: Path, proc: subprocess.Popen, episode: int, timeout_s: float) -> None:
     """Wait (bounded) until `lerobot-record` logs that it records `episode` (the ones before it are saved)."""
     deadline = time.monotonic() + timeout_s
@@ -260,22 +268,7 @@ def test_train_focal_then_rollout_drives_the_sim_arm(recorded, tmp_path):
     assert json.loads((model / "config.json").read_text())["type"] == "focal"
 
     log = tmp_path / "rollout.log"
-    _run(
-        [
-            str(BIN / "lerobot-rollout"),
-            "--strategy.type=base",
-            f"--policy.path={model}",
-            "--policy.device=cpu",
-            *ROBOT,
-            f"--fps={FPS}",
-            "--duration=4",
-            "--task=move the arm",
-        ],
-        _env(tmp_path, pad=False),
-        log,
-        timeout=300,
-    )
-    text = log.read_text(errors="replace")
+    text = _rollout(model, ROBOT, tmp_path, log)
     assert "Policy loaded: type=focal" in text
     m = re.search(r"UR10e disconnected after (\d+) commands \(commanded TCP path ([\d.]+) m\)", text)
     assert m, _tail(log)

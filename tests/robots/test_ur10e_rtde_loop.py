@@ -27,12 +27,13 @@ from .test_ur10e_loop import (  # noqa: E402
     BIN,
     EPISODE_S,
     FPS,
-    REPO_ID,
     _env,
     _load,
     _record_args,
     _run,
+    _rollout,
     _tail,
+    _train,
     wait_for_episode,
     assert_frames_match_their_timestamps,
 )
@@ -148,28 +149,11 @@ def test_rollout_focal_checkpoint_over_rtde(recorded_rtde, emulator, tmp_path):
     _, root, _, _ = recorded_rtde
     out = tmp_path / "train"
     features = {"observation.state": {"type": "STATE", "shape": [13]}}
-    _run(
-        [
-            str(BIN / "lerobot-train"), "--policy.type=focal", "--policy.down_dims=[32,64,128]",
-            "--policy.push_to_hub=false", "--policy.device=cpu", f"--policy.input_features={json.dumps(features)}",
-            f"--dataset.repo_id={REPO_ID}", f"--dataset.root={root}", "--steps=10", "--batch_size=4",
-            "--num_workers=0", "--save_freq=10", "--log_freq=5", "--wandb.enable=false", f"--output_dir={out}",
-        ],  # fmt: skip
-        _env(tmp_path, pad=False),
-        tmp_path / "train.log",
-        timeout=600,
-    )
-    model = out / "checkpoints" / "last" / "pretrained_model"
+    model = _train(root, out, tmp_path, "--policy.down_dims=[32,64,128]",
+                   f"--policy.input_features={json.dumps(features)}", steps=10, log_freq=5)
     since = emulator.status()["commands_total"]
     log = tmp_path / "rollout.log"
-    _run(
-        [str(BIN / "lerobot-rollout"), "--strategy.type=base", f"--policy.path={model}", "--policy.device=cpu",
-         *_robot(emulator.host), f"--fps={FPS}", "--duration=4", "--task=move the arm"],  # fmt: skip
-        _env(tmp_path, pad=False),
-        log,
-        timeout=300,
-    )
-    text = log.read_text(errors="replace")
+    text = _rollout(model, _robot(emulator.host), tmp_path, log)
     assert "Policy loaded: type=focal" in text
     m = re.search(r"UR10e disconnected after (\d+) commands", text)
     assert m and int(m.group(1)) > 10, _tail(log)
