@@ -167,9 +167,9 @@ class RtdeSession:
             self._proc.kill()
             self._proc.wait(5)
 
-    def _exit_code(self) -> str:
+    def _exit_code(self, wait_s: float = 1.0) -> str:
         try:
-            code = self._proc.wait(1.0)
+            code = self._proc.wait(wait_s)
         except subprocess.TimeoutExpired:
             return "still running"
         if code < 0:
@@ -213,6 +213,14 @@ class RtdeSession:
         for event, _ in list(self._replies.values()):
             event.set()
 
+    def _why_gone(self, err: OSError) -> str:
+        """Why the pipe broke: the child's fate when it is already known (a broken pipe is usually noticed a
+        moment before the reader thread reaps the child), else the pipe error. Waits at most 50 ms."""
+        if self._dead is not None:
+            return self._dead
+        fate = self._exit_code(wait_s=0.05)
+        return f"{fate}; {err}" if fate != "still running" else str(err)
+
     # -- calls ------------------------------------------------------------------------------------------------
     def send(self, method: str, *args: Any) -> None:
         """Fire and forget; a refusal shows up in :attr:`failures`. Never blocks on ur_rtde."""
@@ -222,7 +230,7 @@ class RtdeSession:
             with self._send_lock:
                 self._conn.send(("call", None, method, args))
         except OSError as e:
-            raise SessionError(f"the ur_rtde client process is gone ({e})") from e
+            raise SessionError(f"the ur_rtde client process is gone ({self._why_gone(e)})") from e
 
     def call(self, method: str, *args: Any, timeout_s: float) -> Any:
         """Call and wait for the answer at most `timeout_s`; raises SessionError on timeout or death."""
@@ -236,7 +244,7 @@ class RtdeSession:
             with self._send_lock:
                 self._conn.send(("call", req_id, method, args))
         except OSError as e:
-            raise SessionError(f"the ur_rtde client process is gone ({e})") from e
+            raise SessionError(f"the ur_rtde client process is gone ({self._why_gone(e)})") from e
         if not event.wait(timeout_s):
             self._replies.pop(req_id, None)
             raise SessionError(f"ur_rtde's {method} did not return within {timeout_s:.1f} s")
