@@ -53,7 +53,9 @@ def _drive(robot, action: dict, n: int) -> None:
 
 
 def test_robot_moves_the_twin_through_the_real_client(robot, emulator):
-    setup = [c for c in emulator.commands() if c["name"] == "setTcp"]
+    deadline = time.monotonic() + 5  # connect sends setTcp without waiting for the script to take it
+    while not (setup := [c for c in emulator.commands() if c["name"] == "setTcp"]) and time.monotonic() < deadline:
+        time.sleep(0.02)
     assert setup and [setup[-1]["doubles"][i] for i in range(6)] == [0.0, 0.0, robot.config.tcp_offset, 0, 0, 0]
     start = _tcp(robot.get_observation())
     since = emulator.status()["commands_total"]
