@@ -64,8 +64,11 @@ def run(down_dims: tuple[int, ...], batch: int, repeats: int, compile_: bool, ou
     cfg = base.config
     preset = cfg.get_optimizer_preset()
 
-    def variant(opt_cfg, b: int, threads: int = 1):
+    def variant(opt_cfg, b: int, threads: int = 1, compiled: bool = False):
         policy = copy.deepcopy(base)
+        if compiled:
+            policy.model.velocity_net = torch.compile(policy.model.velocity_net)
+            policy.ema_model.velocity_net = torch.compile(policy.ema_model.velocity_net)
         return _step_fn(policy, opt_cfg.build(policy.get_optim_params()), _batch(b, cfg.horizon), threads), b
 
     plain = AdamWConfig(lr=preset.lr, betas=preset.betas, eps=preset.eps, weight_decay=preset.weight_decay)
@@ -77,10 +80,7 @@ def run(down_dims: tuple[int, ...], batch: int, repeats: int, compile_: bool, ou
     }
     compile_s = None
     if compile_:
-        fn, b = variant(preset, batch)
-        policy = fn.__closure__[1].cell_contents  # the deep copy inside this variant's step
-        policy.model.velocity_net = torch.compile(policy.model.velocity_net)
-        policy.ema_model.velocity_net = torch.compile(policy.ema_model.velocity_net)
+        fn, b = variant(preset, batch, compiled=True)
         t0 = time.perf_counter()
         fn()
         compile_s = time.perf_counter() - t0
