@@ -84,11 +84,13 @@ def backproject_depth(
     cam_to_world: np.ndarray | None = None,
     depth_scale: float = 1.0,
     max_depth: float = np.inf,
+    min_depth: float = 0.0,
 ) -> np.ndarray:
     """Return the (N, 3) float64 points of all valid pixels, in the world frame if a pose is given.
 
     ``depth_scale`` converts raw units to metres (RealSense z16 frames: ``depth_scale=0.001``).
-    Pixels at or beyond ``max_depth`` are dropped, like the far plane of a rendered depth buffer.
+    Pixels at or beyond ``max_depth`` are dropped, like the far plane of a rendered depth buffer, and so are
+    those below ``min_depth`` (metres; a sensor's "too close" band).
     """
     depth = np.asarray(depth)
     if depth.shape != (intrinsics.height, intrinsics.width):
@@ -97,7 +99,7 @@ def backproject_depth(
             f"(height, width) = ({intrinsics.height}, {intrinsics.width})"
         )
     z = depth.reshape(-1).astype(np.float64) * depth_scale
-    valid = np.isfinite(z) & (z > 0) & (z < max_depth)
+    valid = np.isfinite(z) & (z > 0) & (z >= min_depth) & (z < max_depth)
     idx = np.flatnonzero(valid)
     z = z[idx]
     u = (idx % intrinsics.width).astype(np.float64)
@@ -117,6 +119,107 @@ def crop_to_workspace(points: np.ndarray, bounds: WorkspaceBounds | None) -> np.
     if bounds is None:
         return points
     return points[bounds.contains(points[:, :3])]
+
+
+class DepthCrop:
+    """Back-projection and workspace crop of one fixed camera, with the crop moved into depth space.
+
+    Why: at 848x480 back-projecting every pixel (~400 k points, float64) and then dropping the ~98 % outside the
+    workspace cost ~50-90 ms per frame, more than the whole control period. A pixel's point lies on its ray at
+    parameter z (rays scaled to z = 1 in the camera), and the box is convex, so the point is inside the box iff z
+    lies in the interval where that ray crosses the box. Those intervals depend only on the intrinsics, the pose
+    and the box, so they are computed once; per frame only two comparisons per pixel remain, and only the
+    surviving pixels are back-projected. The interval test is widened by ``_MARGIN_M`` and every survivor still
+    passes the exact :meth:`WorkspaceBounds.contains`, so the output equals ``crop_to_workspace(backproject_depth
+    (...))`` point for point, in the same (row-major pixel) order.
+    """
+
+    _MARGIN_M = 1e-4
+
+    def __init__(
+        self,
+        intrinsics: PinholeIntrinsics,
+        cam_to_world: np.ndarray,
+        bounds: WorkspaceBounds,
+        max_depth: float = np.inf,
+    ) -> None:
+        self.intrinsics = intrinsics
+        self.pose = _check_pose(cam_to_world).copy()
+        self.bounds = bounds
+        self.max_depth = float(max_depth)
+        rays = intrinsics.pixel_rays() @ self.pose[:3, :3].T  # world-frame directions, z_cam = 1
+        origin = self.pose[:3, 3]
+        lo = np.asarray(bounds.low, dtype=np.float64) - origin
+        hi = np.asarray(bounds.high, dtype=np.float64) - origin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / rays
+            t1, t2 = lo * inv, hi * inv
+        # A zero direction component gives nan (origin on a slab face) or +-inf: nan counts as "no limit".
+        on_face = np.isnan(t1) | np.isnan(t2)
+        near = np.where(on_face, -np.inf, np.minimum(t1, t2)).max(axis=1)
+        far = np.where(on_face, np.inf, np.maximum(t1, t2)).min(axis=1)
+        near = np.maximum(near, 0.0)
+        far = np.minimum(far, self.max_depth)
+        crosses = far > near
+        self._pixels = np.flatnonzero(crosses)
+        self._z_low = (near[crosses] - self._MARGIN_M).astype(np.float32)
+        self._z_high = (far[crosses] + self._MARGIN_M).astype(np.float32)
+
+    @property
+    def num_candidate_pixels(self) -> int:
+        """Pixels whose ray crosses the box at all (the rest are never read)."""
+        return int(self._pixels.size)
+
+    def matches(self, intrinsics: PinholeIntrinsics, cam_to_world: np.ndarray, bounds: WorkspaceBounds,
+                max_depth: float) -> bool:
+        return (
+            intrinsics == self.intrinsics and bounds == self.bounds and float(max_depth) == self.max_depth
+            and np.array_equal(np.asarray(cam_to_world, dtype=np.float64), self.pose)
+        )
+
+    def __call__(self, depth: np.ndarray, depth_scale: float = 1.0, min_depth: float = 0.0) -> np.ndarray:
+        """(N, 3) float64 world points of ``depth`` strictly inside the box; depths below ``min_depth`` (metres)
+        count as no return."""
+        depth = np.asarray(depth)
+        intr = self.intrinsics
+        if depth.shape != (intr.height, intr.width):
+            raise ValueError(
+                f"depth image shape {depth.shape} does not match the intrinsics "
+                f"(height, width) = ({intr.height}, {intr.width})"
+            )
+        flat = depth.reshape(-1)
+        z32 = flat[self._pixels].astype(np.float32)
+        z32 *= np.float32(depth_scale)
+        inside = (z32 > self._z_low) & (z32 < self._z_high)
+        idx = self._pixels[inside]
+        # The survivors are converted exactly as backproject_depth converts them (float64).
+        z = flat[idx].astype(np.float64) * depth_scale
+        valid = np.isfinite(z) & (z > 0) & (z >= min_depth) & (z < self.max_depth)
+        idx, z = idx[valid], z[valid]
+        points = np.empty((idx.size, 3), dtype=np.float64)
+        points[:, 0] = ((idx % intr.width).astype(np.float64) - intr.cx) / intr.fx * z
+        points[:, 1] = ((idx // intr.width).astype(np.float64) - intr.cy) / intr.fy * z
+        points[:, 2] = z
+        points = points @ self.pose[:3, :3].T + self.pose[:3, 3]
+        return points[self.bounds.contains(points)]
+
+
+_DEPTH_CROPS: list[DepthCrop] = []
+_DEPTH_CROP_CACHE_SIZE = 8
+
+
+def cached_depth_crop(
+    intrinsics: PinholeIntrinsics, cam_to_world: np.ndarray, bounds: WorkspaceBounds, max_depth: float = np.inf
+) -> DepthCrop:
+    """The :class:`DepthCrop` of this camera and box, built once: fixed cameras (every simulated benchmark
+    camera, a calibrated robot camera) hit the cache on every frame; a moving camera just rebuilds it."""
+    for crop in _DEPTH_CROPS:
+        if crop.matches(intrinsics, cam_to_world, bounds, max_depth):
+            return crop
+    crop = DepthCrop(intrinsics, cam_to_world, bounds, max_depth)
+    _DEPTH_CROPS.insert(0, crop)
+    del _DEPTH_CROPS[_DEPTH_CROP_CACHE_SIZE:]
+    return crop
 
 
 #: Above this many candidate points, sampling uses the `fpsample` package's bucket FPS (a kd-tree of buckets,
@@ -217,10 +320,19 @@ def depth_to_pointcloud(
     cam_to_world: np.ndarray,
     spec: PointCloudSpec,
     depth_scale: float = 1.0,
+    min_depth: float = 0.0,
 ) -> np.ndarray:
-    """Depth frame -> world points -> workspace crop -> (voxel grid) -> FPS; float32 (num_points, 3)."""
-    points = backproject_depth(depth, intrinsics, cam_to_world, depth_scale=depth_scale, max_depth=spec.max_depth)
-    points = crop_to_workspace(points, spec.bounds)
+    """Depth frame -> world points -> workspace crop -> (voxel grid) -> FPS; float32 (num_points, 3).
+
+    With bounds, back-projection and crop go through the camera's cached :class:`DepthCrop` (same points,
+    ~20x faster at 848x480)."""
+    if spec.bounds is not None:
+        crop = cached_depth_crop(intrinsics, cam_to_world, spec.bounds, spec.max_depth)
+        points = crop(depth, depth_scale, min_depth=min_depth)
+    else:
+        points = backproject_depth(
+            depth, intrinsics, cam_to_world, depth_scale=depth_scale, max_depth=spec.max_depth, min_depth=min_depth
+        )
     points = voxel_downsample(points, spec.voxel_size)
     return farthest_point_sample(points, spec.num_points).astype(np.float32, copy=False)
 

@@ -155,9 +155,9 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
     def _one(self, frame: np.ndarray, scale: float) -> np.ndarray:
         from lerobot_focal.geometry.pointcloud import depth_to_pointcloud
 
-        metres = frame.astype(np.float64) * scale
-        metres[metres < self.min_depth] = 0.0
-        return depth_to_pointcloud(metres, self._intrinsics, self._pose, self._spec, depth_scale=1.0)
+        return depth_to_pointcloud(
+            frame, self._intrinsics, self._pose, self._spec, depth_scale=scale, min_depth=self.min_depth
+        )
 
     def _warn_empty(self) -> None:
         now = time.monotonic()

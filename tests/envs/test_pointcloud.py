@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lerobot_focal.geometry.pointcloud import (
+    DepthCrop,
     PinholeIntrinsics,
     WorkspaceBounds,
     backproject_depth,
@@ -93,6 +94,45 @@ def test_crop_and_voxel():
     box = WorkspaceBounds((-1, -1, -1), (1, 1, 1))
     assert len(crop_to_workspace(pts, box)) == 3
     np.testing.assert_array_equal(voxel_downsample(pts, 0.01), pts[[0, 2, 3]])
+
+
+def _scene_depth(intr: PinholeIntrinsics, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A table-top depth frame in mm (uint16): the z = 0 plane plus boxes, holes (0) and far returns."""
+    rays = intr.pixel_rays() @ pose[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -pose[2, 3] / rays[:, 2]  # hits on the z = 0 table plane, z_cam = t
+    t = np.where(t > 0, t, 6.0)
+    t = t - rng.uniform(0, 0.3, t.size) * (rng.uniform(size=t.size) < 0.2)  # "objects" above the table
+    mm = np.clip(np.round(t * 1000.0), 0, 65535).astype(np.uint16)
+    mm[rng.uniform(size=mm.size) < 0.05] = 0  # no return
+    return mm.reshape(intr.height, intr.width)
+
+
+@pytest.mark.parametrize(
+    ("eye", "low", "high"),
+    [
+        ((-1.45, -0.15, 0.8), (-1.1, -0.7, 0.003), (-0.2, 0.4, 0.8)),  # the ur10e twin's camera and crop box
+        ((0.0, 0.0, 0.5), (-0.5, -0.5, 0.0), (0.5, 0.5, 1.0)),  # camera inside the box, looking straight down
+    ],
+)
+def test_depth_crop_gives_the_points_of_backprojection_then_crop(eye, low, high):
+    """The depth-space crop (intervals precomputed per pixel) returns exactly the points of back-projecting
+    every pixel and cropping, in the same order, including depth units, min_depth and max_depth."""
+    intr = PinholeIntrinsics.from_fovy(58.0, 848, 480)
+    pose = look_at_pose(eye=eye, target=(eye[0] + 1e-3 + 0.7 * (eye[2] > 0.6), eye[1], 0.0))
+    box = WorkspaceBounds(low, high)
+    depth = _scene_depth(intr, pose, np.random.default_rng(3))
+    for max_depth, min_depth in ((np.inf, 0.0), (1.2, 0.3)):
+        crop = DepthCrop(intr, pose, box, max_depth=max_depth)
+        reference = crop_to_workspace(
+            backproject_depth(depth, intr, pose, depth_scale=0.001, max_depth=max_depth, min_depth=min_depth), box
+        )
+        fast = crop(depth, depth_scale=0.001, min_depth=min_depth)
+        assert len(reference) > 1000
+        np.testing.assert_allclose(fast, reference, rtol=0, atol=1e-12)
+        assert crop.num_candidate_pixels <= intr.width * intr.height
+    with pytest.raises(ValueError, match="does not match the intrinsics"):
+        crop(depth[:-1])
 
 
 def test_raycast_matches_osmesa_render():
