@@ -6,6 +6,8 @@
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
+    lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
+                                                        (lerobot-rollout on the UR-10e twin: stage latencies)
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
+    sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
+                                                   "and loop rate (see `lerobot-focal-bench rollout --help`)")
     if argv is None:
         import sys
 
@@ -57,6 +61,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.eval_profile import main as eval_profile_main
 
         return eval_profile_main(argv[1:])
+    if argv[:1] == ["rollout"]:
+        from lerobot_focal.benchmarks.rollout_latency import main as rollout_main
+
+        return rollout_main(argv[1:])
     if argv[:1] == ["train-step"]:
         from lerobot_focal.benchmarks.train_step import main as train_step_main
 

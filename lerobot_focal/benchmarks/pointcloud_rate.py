@@ -3,7 +3,8 @@
     python -m lerobot_focal.benchmarks.pointcloud_rate [--task pick-place-v3] [--frames 30] [--runs 5]
 
 Frames are taken at distinct states of a random-action rollout (the arm moves, so every frame is new work);
-the env's own physics step is excluded. Prints the median over runs, for each setting measured.
+the env's own physics step is excluded. Prints the median over runs, for each setting measured, and the same
+pipeline with the workspace crop done the old way (back-project every pixel, then crop) for comparison.
 """
 
 from __future__ import annotations
@@ -16,7 +17,13 @@ import mujoco
 import numpy as np
 
 from lerobot_focal.envs.metaworld_env import FocalMetaworldEnv
-from lerobot_focal.geometry.pointcloud import PointCloudSpec
+from lerobot_focal.geometry.pointcloud import (
+    PointCloudSpec,
+    backproject_depth,
+    crop_to_workspace,
+    farthest_point_sample,
+    voxel_downsample,
+)
 from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
 
 
@@ -34,8 +41,18 @@ def _record_states(env: FocalMetaworldEnv, frames: int, seed: int) -> list[np.nd
     return states
 
 
+def _crop_after_backprojection(sensor: RayCastPointCloudSensor, data: mujoco.MjData) -> np.ndarray:
+    """The pipeline as it was before `DepthCrop`: every pixel back-projected, then cropped."""
+    depth = sensor.camera.render(data)
+    spec = sensor.spec
+    points = backproject_depth(depth, sensor.camera.intrinsics, sensor.camera.pose(data).matrix(),
+                               max_depth=spec.max_depth)
+    points = voxel_downsample(crop_to_workspace(points, spec.bounds), spec.voxel_size)
+    return farthest_point_sample(points, spec.num_points).astype(np.float32)
+
+
 def measure(
-    task: str, frames: int, runs: int, threads: int, voxel_size: float, seed: int = 0
+    task: str, frames: int, runs: int, threads: int, voxel_size: float, seed: int = 0, crop_first: bool = False
 ) -> tuple[float, float, int]:
     """Median observations/s (wall clock) and CPU ms per observation over ``runs`` passes of ``frames``
     distinct states; also the mean number of rays mj_multiRay cast per frame."""
@@ -52,7 +69,7 @@ def measure(
             mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
             mujoco.mj_forward(model, data)
             start, start_cpu = time.perf_counter(), time.process_time()
-            cloud = sensor(data)
+            cloud = _crop_after_backprojection(sensor, data) if crop_first else sensor(data)
             elapsed += time.perf_counter() - start
             cpu += time.process_time() - start_cpu
             cast.append(sensor.camera.num_cast_rays)
@@ -72,11 +89,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     load = os.getloadavg()[0]
     print(f"MetaWorld {args.task}, camera corner2, 128x128 rays -> 512 points; {os.cpu_count()} cores, load {load:.2f}")
-    for threads, voxel in ((1, 0.01), (1, 0.0), (2, 0.01)):
-        rate, cpu_ms, rays = measure(args.task, args.frames, args.runs, threads, voxel)
+    for threads, voxel, crop_first in ((1, 0.01, False), (1, 0.01, True), (1, 0.0, False), (2, 0.01, False)):
+        rate, cpu_ms, rays = measure(args.task, args.frames, args.runs, threads, voxel, crop_first=crop_first)
         label = "exact FPS" if voxel == 0 else f"voxel {voxel * 100:.0f} cm + FPS"
+        label += ", crop after back-projecting all pixels" if crop_first else ""
         print(
-            f"threads={threads} {label:<18} rays cast/frame={rays:5d}  {rate:6.1f} obs/s  "
+            f"threads={threads} {label:<58} rays cast/frame={rays:5d}  {rate:6.1f} obs/s  "
             f"({1e3 / rate:5.1f} ms/obs wall, {cpu_ms:5.1f} ms CPU)"
         )
 

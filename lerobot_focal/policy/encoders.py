@@ -99,8 +99,16 @@ class ObservationEncoder(nn.Module):
         self.feature_dim = feat_dim
         self.global_cond_dim = feat_dim * config.n_obs_steps
 
-    def forward(self, obs: dict[str, Tensor]) -> Tensor:
-        """obs[key]: (B, n_obs, *feature_shape) → (B, n_obs · feature_dim)."""
+    def encode_image(self, key: str, frames: Tensor) -> Tensor:
+        """RGB frames (N, 3, H, W) of camera `key` → (N, image feature dim)."""
+        i = self.image_keys.index(key)
+        return self.rgb[i if len(self.rgb) > 1 else 0](frames)
+
+    def forward(self, obs: dict[str, Tensor], image_features: dict[str, Tensor] | None = None) -> Tensor:
+        """obs[key]: (B, n_obs, *feature_shape) → (B, n_obs · feature_dim).
+
+        ``image_features[key]`` (B, n_obs, F), when given, replaces encoding that camera's frames (the policy
+        encodes each frame once at inference, see `FocalPolicy.select_action`)."""
         parts: list[Tensor] = []
         if self.pointcloud_key:
             parts.append(_per_step(self.pointcloud, obs[self.pointcloud_key]))
@@ -109,6 +117,9 @@ class ObservationEncoder(nn.Module):
         if self.env_state_key:
             parts.append(self.env_state(obs[self.env_state_key]))
         for i, key in enumerate(self.image_keys):
+            if image_features is not None and key in image_features:
+                parts.append(image_features[key])
+                continue
             encoder = self.rgb[i if len(self.rgb) > 1 else 0]
             parts.append(_per_step(encoder, obs[key]))
         feats = torch.cat(parts, dim=-1)  # (B, n_obs, feature_dim)

@@ -171,6 +171,47 @@ def test_image_only_policy_trains_and_acts():
     assert policy.eval().select_action({"observation.images.front": torch.rand(1, 3, 32, 32)}).shape == (1, 3)
 
 
+@pytest.mark.parametrize(("n_action_steps", "n_chunks"), [(4, 3), (1, 4)])
+def test_rgb_frames_are_encoded_once_each_with_the_actions_of_whole_window_encoding(n_action_steps, n_chunks):
+    """select_action encodes each camera frame once, on the step it arrives (when the next chunk will read it),
+    and the actions equal those of encoding the whole n_obs_steps window at the chunk step."""
+    torch.manual_seed(0)
+    policy = small_policy(state=4, pointcloud=None, image=(3, 32, 40), crop_shape=(28, 36),
+                          chunk_size=n_action_steps, n_chunks=n_chunks).eval()
+    encoder = policy._inference_net().obs_encoder.rgb[0]
+    encoded: list[int] = []
+    encoder.register_forward_hook(lambda module, args, out: encoded.append(args[0].shape[0]))
+    frames = [{"observation.state": torch.randn(1, 4), "observation.images.front": torch.rand(1, 3, 32, 40)}
+              for _ in range(9)]
+    horizon = policy.config.horizon
+    noises = [torch.randn(1, horizon, 3) for _ in range(9)]
+    per_step_encodes, actions = [], []
+    for t, obs in enumerate(frames):
+        before = sum(encoded)
+        actions.append(policy.select_action(dict(obs), noise=noises[t]))
+        per_step_encodes.append(sum(encoded) - before)
+
+    reference = FocalPolicy(policy.config)
+    reference.load_state_dict(policy.state_dict())
+    reference.eval()
+    for t in range(0, 9, n_action_steps):
+        window = [frames[max(t - 1, 0)], frames[t]]
+        obs = {k: torch.stack([w[k] for w in window], dim=1) for k in frames[0]}
+        chunk = reference.sample_macro_trajectory(obs, noises[t])[:, :n_action_steps]
+        for i in range(n_action_steps):
+            if t + i < 9:
+                torch.testing.assert_close(actions[t + i], chunk[:, i], rtol=1e-5, atol=1e-5)
+    if n_action_steps == 4:
+        # chunk steps 0, 4, 8: the first encodes its window (two copies of frame 0), the later ones only their
+        # own frame; steps 3 and 7 encode theirs ahead; the other steps encode nothing.
+        assert per_step_encodes == [2, 0, 0, 1, 1, 0, 0, 1, 1]
+    else:
+        assert per_step_encodes == [2] + [1] * 8
+    policy.reset()
+    policy.select_action(dict(frames[0]))
+    assert len(policy._frame_features) == policy.config.n_obs_steps
+
+
 # --- bad input --------------------------------------------------------------------------------------------
 
 

@@ -214,3 +214,34 @@ def test_disconnect_stops_everything(tmp_path):
 
     with pytest.raises(DeviceNotConnectedError):
         r.get_observation()
+
+
+def test_threaded_camera_serves_its_latest_frame_at_its_own_rate(tmp_path):
+    """With sim_camera_fps > 0 the twin's camera renders in its own thread, as LeRobot's RealSense thread does:
+    reads within one frame period get the same frame, new frames keep coming at no more than that rate, and
+    they follow the arm."""
+    fps = 10.0
+    r = UR10e(UR10eConfig(backend="sim", calibration_dir=tmp_path, sim_camera_fps=fps))
+    r.connect()
+    try:
+        backend = r.backend
+        quick = [r.get_observation()["front_depth"] for _ in range(20)]  # ~ms apart: no render on read
+        assert len({id(d) for d in quick}) <= 2
+        first = quick[-1]
+        seen, t0 = {id(first)}, time.perf_counter()
+        frames = [first]
+        while time.perf_counter() - t0 < 1.5:
+            depth = r.get_observation()["front_depth"]
+            if id(depth) not in seen:
+                seen.add(id(depth))
+                frames.append(depth)
+            r.send_action({"ee_x.vel": 0.0, "ee_y.vel": 0.0, "ee_z.vel": 0.15, "ee_roll.vel": 0.0,
+                           "ee_pitch.vel": 0.0, "ee_yaw.vel": 0.0, "gripper.pos": 0.0})
+            time.sleep(0.01)
+        assert 3 <= len(frames) <= 1.5 * fps + 2, len(frames)
+        assert not np.array_equal(frames[0], frames[-1])  # the arm moved up: later frames show it
+    finally:
+        r.disconnect()
+    assert not backend.is_connected and backend._camera_thread is None
+    with pytest.raises(ValueError, match="sim_camera_fps"):
+        UR10eConfig(backend="sim", sim_camera_fps=-1)

@@ -44,6 +44,10 @@ class UR10eConfig(RobotConfig):
     sim_camera_fovy_deg: float = 58.0  # the D435i depth stream's vertical field of view
     sim_camera_pos: tuple[float, float, float] = (-1.45, -0.15, 0.8)
     sim_camera_lookat: tuple[float, float, float] = (-0.6, -0.15, 0.05)
+    # 0: each observation renders the frame of that instant (deterministic; the render counts in the loop).
+    # > 0: the twin's camera renders in its own thread at this rate and an observation takes its latest frame,
+    # as LeRobot's RealSense thread serves the arm's loop (e.g. 30 for the D435i at 848x480).
+    sim_camera_fps: float = 0.0
     # Fraction of the UR10e's maximum joint speeds the simulated joint servo may use.
     sim_joint_speed_fraction: float = 0.5
 
@@ -72,6 +76,8 @@ class UR10eConfig(RobotConfig):
             raise ValueError(f"UR10eConfig.backend must be one of {BACKENDS}, got {self.backend!r}.")
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"UR10eConfig.action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}.")
+        if self.sim_camera_fps < 0:
+            raise ValueError(f"UR10eConfig.sim_camera_fps must be >= 0 (0 renders on each read), got {self.sim_camera_fps}.")
         if self.control_hz <= 0:
             raise ValueError(f"UR10eConfig.control_hz must be positive, got {self.control_hz}.")
         lo, hi = self.safety.workspace_min, self.safety.workspace_max

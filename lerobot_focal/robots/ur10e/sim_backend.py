@@ -90,6 +90,10 @@ class SimBackend:
         self._q_set = _HOME_Q.copy()
         self._gripper_des = 0.0
         self.steps_per_second = 0.0
+        self._render_lock = threading.Lock()  # the render data and camera are used by one thread at a time
+        self._camera_thread: threading.Thread | None = None
+        self._latest_frame: tuple[np.ndarray, np.ndarray] | None = None
+        self._new_frame = threading.Event()
 
     # -- lifecycle --------------------------------------------------------------------------------------------
     @property
@@ -120,12 +124,18 @@ class SimBackend:
         self._running.set()
         self._thread = threading.Thread(target=self._physics_loop, name="ur10e-sim", daemon=True)
         self._thread.start()
+        self._latest_frame = None
+        self._new_frame.clear()
+        if self.config.sim_camera_fps > 0:
+            self._camera_thread = threading.Thread(target=self._camera_loop, name="ur10e-sim-camera", daemon=True)
+            self._camera_thread.start()
 
     def disconnect(self) -> None:
         self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-        self._thread = None
+        for thread in (self._thread, self._camera_thread):
+            if thread is not None:
+                thread.join(timeout=2.0)
+        self._thread = self._camera_thread = None
 
     # -- physics ----------------------------------------------------------------------------------------------
     def _physics_loop(self) -> None:
@@ -206,19 +216,46 @@ class SimBackend:
         self._fault = reason
 
     def read_cameras(self) -> dict[str, tuple[np.ndarray | None, np.ndarray | None]]:
-        rd = self._render_data
-        with self._lock:
-            rd.qpos[:] = self.data.qpos
-        mujoco.mj_kinematics(self.model, rd)
-        mujoco.mj_camlight(self.model, rd)
-        rgb, depth = self._camera.render(rd)
-        return {self.config.sim_camera_name: (rgb, depth)}
+        if self._camera_thread is None:
+            return {self.config.sim_camera_name: self._render()}
+        if not self._new_frame.wait(timeout=5.0):
+            raise RobotFaultError("UR10e (sim): the camera thread produced no frame within 5 s.")
+        return {self.config.sim_camera_name: self._latest_frame}
+
+    def _render(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rgb, depth) of the arm's pose at this instant."""
+        with self._render_lock:
+            rd = self._render_data
+            with self._lock:
+                rd.qpos[:] = self.data.qpos
+            mujoco.mj_kinematics(self.model, rd)
+            mujoco.mj_camlight(self.model, rd)
+            return self._camera.render(rd)
+
+    def _camera_loop(self) -> None:
+        """Render at sim_camera_fps and keep the latest frame, as a real camera's driver thread does."""
+        period = 1.0 / self.config.sim_camera_fps
+        next_t = time.perf_counter()
+        try:
+            while self._running.is_set():
+                self._latest_frame = self._render()  # replaced, never mutated: readers keep a consistent frame
+                self._new_frame.set()
+                next_t += period
+                delay = next_t - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                else:  # rendering is slower than the frame rate: deliver as fast as it can, without bursts
+                    next_t = time.perf_counter()
+        except Exception as e:  # noqa: BLE001 - surfaced through check_health()
+            self._fault = f"camera thread crashed: {e!r}"
+            logger.exception("UR10e sim camera thread crashed")
 
     def camera_infos(self) -> dict[str, CameraInfo]:
-        rd = self._render_data
-        mujoco.mj_kinematics(self.model, rd)
-        mujoco.mj_camlight(self.model, rd)
-        return {self.config.sim_camera_name: self._camera.camera_info(rd)}
+        with self._render_lock:
+            rd = self._render_data
+            mujoco.mj_kinematics(self.model, rd)
+            mujoco.mj_camlight(self.model, rd)
+            return {self.config.sim_camera_name: self._camera.camera_info(rd)}
 
     def joint_velocities(self) -> np.ndarray:
         with self._lock:
