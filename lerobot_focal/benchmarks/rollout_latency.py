@@ -256,8 +256,9 @@ def write_report(result: dict, out: Path) -> None:
             f"{c['fps_achieved']:.1f} / {c['fps_requested']} Hz | {c['late_periods']} of {c['steps']} |"
         )
     lines += ["", "Per stage, policy steps, p50 / p99 ms (camera read is inside get_observation; depth -> cloud "
-              "inside preprocessor; network inside select_action; all inside inference except get_observation "
-              "and send_action):", "",
+              "inside preprocessor; network, the one evaluation of the chunk, inside select_action, which also "
+              "encodes the newest camera frame for RGB inputs; all inside inference except get_observation and "
+              "send_action):", "",
               "| inputs | " + " | ".join(STAGES) + " |", "|---|" + "---|" * len(STAGES)]
     for c in result["configurations"]:
         cells = [f"{c['stages_ms'][s]['policy_steps']['p50']:.1f} / {c['stages_ms'][s]['policy_steps']['p99']:.1f}"
@@ -369,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         "goal_p99_ms": GOAL_MS,
         "torch_threads": torch.get_num_threads(),
         "machine": f"{os.cpu_count()} CPU cores, {platform.processor() or platform.machine()}",
-        "command": "lerobot-focal-bench rollout " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": " ".join(["lerobot-focal-bench rollout", *(argv if argv is not None else sys.argv[1:])]),
         "configurations": configurations,
     }
     write_report(result, args.out)

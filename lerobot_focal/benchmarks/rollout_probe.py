@@ -13,7 +13,8 @@ Stages (what a user's loop spends its period on):
   (the backend's ``read_cameras``: the twin renders the frame here; a real camera hands over its latest frame);
 * ``inference``: LeRobot's ``SyncInferenceEngine.get_action``, inside it ``preprocessor`` (with
   ``depth_to_cloud``, focal's depth -> point cloud step), ``select_action`` (with ``network``: the one
-  network evaluation of an action chunk, only on the steps that call the policy) and ``postprocessor``;
+  network evaluation of an action chunk, only on the steps that call the policy; for RGB inputs
+  ``select_action`` also encodes the newest camera frame) and ``postprocessor``;
 * ``send_action``: `UR10e.send_action` (safety filter, IK on the twin, servo command).
 """
 
