@@ -157,3 +157,23 @@ def test_demo_heldout_and_evaluation_seeds_never_overlap():
         final = {FINAL_EVAL_SEED + 1000 * s + i for s in preset.seeds for i in range(preset.final_episodes)}
         sets = [periodic, demos, heldout, final]
         assert all(not (a & b) for i, a in enumerate(sets) for b in sets[i + 1:]), preset.name
+
+
+def test_a_second_evaluation_of_the_final_checkpoint_keeps_its_own_files_and_the_same_episodes(tmp_path):
+    """ema_eval re-evaluates the grid's final checkpoint (online weights) on the same fresh episodes: same seed
+    and episode count, but its own episode file, output folder and job name, so the grid's own stay intact."""
+    from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
+    from lerobot_focal.benchmarks.grid.run import final_eval_command
+
+    specs, *_ = build_specs(parse_args(["--preset", "cpu_plateau", "--tasks", "pick-place", "--methods", "focal",
+                                        "--seeds", "1", "--out", str(tmp_path / "out"),
+                                        "--work", str(tmp_path / "work")]))
+    spec = specs[0]
+    checkpoint = tmp_path / "ckpt"
+    grid_cmd = final_eval_command(spec, checkpoint)
+    online_cmd = final_eval_command(spec, checkpoint, name="online")
+    assert len(grid_cmd) == len(online_cmd)
+    differing = [(a, b) for a, b in zip(grid_cmd, online_cmd, strict=True) if a != b]
+    assert differing and all("final" in a and "online" in b and "final" not in b for a, b in differing)
+    seed = [c for c in online_cmd if c.startswith("--seed=")]
+    assert seed == [c for c in grid_cmd if c.startswith("--seed=")] and seed[0].endswith(str(200000 + 1000))

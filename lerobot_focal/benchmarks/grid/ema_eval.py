@@ -48,9 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         spec = specs[r["key"]]
         run_dir = spec.run_dir
         checkpoint = run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
-        cmd = final_eval_command(spec, checkpoint)
-        cmd = [c.replace("final_episodes.jsonl", "online_episodes.jsonl").replace("final_eval", "online_eval")
-               for c in cmd] + ["--policy.use_ema_for_inference=false"]
+        cmd = [*final_eval_command(spec, checkpoint, name="online"), "--policy.use_ema_for_inference=false"]
         _call(cmd, run_dir / "online_eval.log", _env(spec.preset), "lerobot-eval (online weights)")
         eps = [json.loads(x) for x in (run_dir / "online_episodes.jsonl").read_text().splitlines() if x]
         eps = [e for e in eps if e.get("seed") is not None]

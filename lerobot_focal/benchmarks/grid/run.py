@@ -76,20 +76,23 @@ def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
     ]
 
 
-def final_eval_command(spec: RunSpec, checkpoint: Path) -> list[str]:
-    """`lerobot-eval` of the final checkpoint on `final_episodes` fresh episodes (see FINAL_EVAL_SEED)."""
+def final_eval_command(spec: RunSpec, checkpoint: Path, name: str = "final") -> list[str]:
+    """`lerobot-eval` of the final checkpoint on `final_episodes` fresh episodes (see FINAL_EVAL_SEED).
+
+    ``name`` prefixes its episode file, output folder and job (another evaluation of the same episodes, e.g.
+    with the online weights, keeps its own files)."""
     p = spec.preset
     out = spec.run_dir
     return [
         console_script("lerobot-eval"),
         f"--policy.path={checkpoint}",
         f"--policy.device={p.device}",
-        *_env_args(spec, out / "final_episodes.jsonl"),
+        *_env_args(spec, out / f"{name}_episodes.jsonl"),
         f"--eval.n_episodes={p.final_episodes}",
         f"--eval.batch_size={min(p.final_episodes, 25)}",
         f"--seed={FINAL_EVAL_SEED + 1000 * spec.seed}",
-        f"--output_dir={out / 'final_eval'}",
-        "--job_name=final_eval",
+        f"--output_dir={out / f'{name}_eval'}",
+        f"--job_name={name}_eval",
     ]
 
 
