@@ -3,7 +3,9 @@
 It behaves like the real arm as seen from the driver: a TCP target is tracked until the next one arrives (like
 servoL), the arm keeps moving between commands, `stop()` holds the current pose, and faults can be injected so
 the fault paths of the driver are testable without hardware. Cartesian targets are turned into joint targets
-by damped-least-squares IK on the same MuJoCo model, at the command rate.
+by damped-least-squares IK on the same MuJoCo model, at the command rate. The camera renders the pose of the
+instant it is read, or, with ``sim_camera_fps`` > 0, in its own thread whose latest frame each read takes (what
+LeRobot's camera threads do on the real arm).
 """
 
 from __future__ import annotations
