@@ -130,8 +130,9 @@ class DepthCrop:
     lies in the interval where that ray crosses the box. Those intervals depend only on the intrinsics, the pose
     and the box, so they are computed once; per frame only two comparisons per pixel remain, and only the
     surviving pixels are back-projected. The interval test is widened by ``_MARGIN_M`` and every survivor still
-    passes the exact :meth:`WorkspaceBounds.contains`, so the output equals ``crop_to_workspace(backproject_depth
-    (...))`` point for point, in the same (row-major pixel) order.
+    passes the exact :meth:`WorkspaceBounds.contains`, so the output holds the points of ``crop_to_workspace(
+    backproject_depth(...))``: the same pixels in the same (row-major) order, coordinates equal up to float64
+    rounding (the final matrix product runs on fewer rows).
     """
 
     _MARGIN_M = 1e-4
@@ -173,7 +174,10 @@ class DepthCrop:
     def matches(self, intrinsics: PinholeIntrinsics, cam_to_world: np.ndarray, bounds: WorkspaceBounds,
                 max_depth: float) -> bool:
         return (
-            intrinsics == self.intrinsics and bounds == self.bounds and float(max_depth) == self.max_depth
+            intrinsics == self.intrinsics
+            and np.array_equal(np.asarray(bounds.low, float), np.asarray(self.bounds.low, float))
+            and np.array_equal(np.asarray(bounds.high, float), np.asarray(self.bounds.high, float))
+            and float(max_depth) == self.max_depth
             and np.array_equal(np.asarray(cam_to_world, dtype=np.float64), self.pose)
         )
 
@@ -213,8 +217,9 @@ def cached_depth_crop(
 ) -> DepthCrop:
     """The :class:`DepthCrop` of this camera and box, built once: fixed cameras (every simulated benchmark
     camera, a calibrated robot camera) hit the cache on every frame; a moving camera just rebuilds it."""
-    for crop in _DEPTH_CROPS:
+    for i, crop in enumerate(_DEPTH_CROPS):
         if crop.matches(intrinsics, cam_to_world, bounds, max_depth):
+            _DEPTH_CROPS.insert(0, _DEPTH_CROPS.pop(i))  # least recently used goes first when full
             return crop
     crop = DepthCrop(intrinsics, cam_to_world, bounds, max_depth)
     _DEPTH_CROPS.insert(0, crop)

@@ -234,8 +234,10 @@ class FocalPolicy(PreTrainedPolicy):
         With RGB inputs each frame is encoded once, and as early as it is known to be needed: a chunk reads the
         last n_obs_steps frames, so the frames of the steps just before a chunk step are encoded on their own
         step. The chunk step then encodes only its own frame, which cuts its latency (at 848x480 with two
-        108x192 crops, by one ResNet-18 pass) at the same total compute. Encoding is per frame (GroupNorm, no
-        batch statistics), so the actions are those of encoding the whole window at once.
+        108x192 crops, by one ResNet-18 pass) at the same total compute (the first step after `reset()` encodes
+        its whole window of copies). Encoding is per frame (GroupNorm, no batch statistics), so the actions are
+        those of encoding the whole window at once, up to float rounding. Features are kept until `reset()`:
+        call it after changing the weights mid-episode, as LeRobot's eval and rollout do per episode.
         """
         current = self._observations(batch, training=False, stacked=False)
         self._queues = populate_queues(self._queues, current)

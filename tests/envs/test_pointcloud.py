@@ -133,6 +133,11 @@ def test_depth_crop_gives_the_points_of_backprojection_then_crop(eye, low, high)
         assert crop.num_candidate_pixels <= intr.width * intr.height
     with pytest.raises(ValueError, match="does not match the intrinsics"):
         crop(depth[:-1])
+    # The shared cache takes boxes given as arrays too, and reuses the crop of an equal box.
+    from lerobot_focal.geometry.pointcloud import cached_depth_crop
+
+    as_arrays = WorkspaceBounds(np.asarray(low, float), np.asarray(high, float))
+    assert cached_depth_crop(intr, pose, as_arrays) is cached_depth_crop(intr, pose, WorkspaceBounds(low, high))
 
 
 def test_raycast_matches_osmesa_render():

@@ -243,5 +243,6 @@ def test_threaded_camera_serves_its_latest_frame_at_its_own_rate(tmp_path):
     finally:
         r.disconnect()
     assert not backend.is_connected and backend._camera_thread is None
-    with pytest.raises(ValueError, match="sim_camera_fps"):
-        UR10eConfig(backend="sim", sim_camera_fps=-1)
+    for bad in (-1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="sim_camera_fps"):
+            UR10eConfig(backend="sim", sim_camera_fps=bad)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from lerobot.cameras import CameraConfig
@@ -76,7 +77,7 @@ class UR10eConfig(RobotConfig):
             raise ValueError(f"UR10eConfig.backend must be one of {BACKENDS}, got {self.backend!r}.")
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"UR10eConfig.action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}.")
-        if self.sim_camera_fps < 0:
+        if not (math.isfinite(self.sim_camera_fps) and self.sim_camera_fps >= 0):
             raise ValueError(f"UR10eConfig.sim_camera_fps must be >= 0 (0 renders on each read), got {self.sim_camera_fps}.")
         if self.control_hz <= 0:
             raise ValueError(f"UR10eConfig.control_hz must be positive, got {self.control_hz}.")
