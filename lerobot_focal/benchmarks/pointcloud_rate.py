@@ -41,14 +41,18 @@ def _record_states(env: FocalMetaworldEnv, frames: int, seed: int) -> list[np.nd
     return states
 
 
-def _crop_after_backprojection(sensor: RayCastPointCloudSensor, data: mujoco.MjData) -> np.ndarray:
-    """The pipeline as it was before `DepthCrop`: every pixel back-projected, then cropped."""
-    depth = sensor.camera.render(data)
-    spec = sensor.spec
-    points = backproject_depth(depth, sensor.camera.intrinsics, sensor.camera.pose(data).matrix(),
-                               max_depth=spec.max_depth)
+def _cloud_cropped_after_backprojection(depth: np.ndarray, intrinsics, cam_to_world: np.ndarray,
+                                        spec: PointCloudSpec, depth_scale: float = 1.0) -> np.ndarray:
+    """The pipeline as it was before `DepthCrop`: every pixel back-projected, then cropped, voxels, FPS."""
+    points = backproject_depth(depth, intrinsics, cam_to_world, depth_scale=depth_scale, max_depth=spec.max_depth)
     points = voxel_downsample(crop_to_workspace(points, spec.bounds), spec.voxel_size)
     return farthest_point_sample(points, spec.num_points).astype(np.float32)
+
+
+def _crop_after_backprojection(sensor: RayCastPointCloudSensor, data: mujoco.MjData) -> np.ndarray:
+    camera = sensor.camera
+    return _cloud_cropped_after_backprojection(camera.render(data), camera.intrinsics, camera.pose(data).matrix(),
+                                               sensor.spec)
 
 
 def measure(
@@ -87,7 +91,12 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
     from pathlib import Path
     from tempfile import TemporaryDirectory
 
-    from lerobot_focal.geometry.pointcloud import PinholeIntrinsics, WorkspaceBounds, depth_to_pointcloud
+    from lerobot_focal.geometry.pointcloud import (
+        PinholeIntrinsics,
+        WorkspaceBounds,
+        cached_depth_crop,
+        depth_to_pointcloud,
+    )
     from lerobot_focal.robots.ur10e import UR10e, UR10eConfig
 
     with TemporaryDirectory() as tmp:
@@ -105,8 +114,7 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
     spec = PointCloudSpec(num_points=512, bounds=WorkspaceBounds(tuple(cfg.pointcloud_min), tuple(cfg.pointcloud_max)))
 
     def old() -> np.ndarray:
-        points = crop_to_workspace(backproject_depth(depth, intr, pose, depth_scale=0.001), spec.bounds)
-        return farthest_point_sample(points, 512).astype(np.float32)
+        return _cloud_cropped_after_backprojection(depth, intr, pose, spec, depth_scale=0.001)
 
     def new() -> np.ndarray:
         return depth_to_pointcloud(depth, intr, pose, spec, depth_scale=0.001)
@@ -118,7 +126,7 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
             fn()
             times[name].append(time.perf_counter() - start)
     np.testing.assert_allclose(new(), old(), rtol=0, atol=1e-6)  # same cloud (float64 rounding aside)
-    cropped = len(crop_to_workspace(backproject_depth(depth, intr, pose, depth_scale=0.001), spec.bounds))
+    cropped = len(cached_depth_crop(intr, pose, spec.bounds)(depth, depth_scale=0.001))
     return 1e3 * float(np.median(times["new"])), 1e3 * float(np.median(times["old"])), cropped
 
 

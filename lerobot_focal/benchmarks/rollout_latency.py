@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_focal.console import console_script
+
 STAGES = ("get_observation", "camera_read", "inference", "preprocessor", "depth_to_cloud", "select_action",
           "network", "postprocessor", "send_action")
 DEPTH_KEY = "observation.images.front_depth"
@@ -155,8 +157,7 @@ def train_checkpoint(dataset: Path, out: Path, variant: Variant, steps: int, wor
     if (model / "model.safetensors").is_file():
         return model
     shutil.rmtree(out, ignore_errors=True)
-    bin_dir = Path(sys.executable).parent
-    args = [str(bin_dir / "lerobot-train"), f"--config_path={preset_path('cpu')}", "--policy.device=cpu",
+    args = [console_script("lerobot-train"), f"--config_path={preset_path('cpu')}", "--policy.device=cpu",
             *variant.train_args, "--dataset.repo_id=local/ur10e_rollout_bench", f"--dataset.root={dataset}",
             f"--steps={steps}", "--batch_size=4", f"--save_freq={steps}", f"--log_freq={steps}",
             f"--output_dir={out}"]

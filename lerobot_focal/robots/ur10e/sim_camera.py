@@ -66,11 +66,8 @@ class RayCastCamera:
         depth_mm = np.clip(np.round(z * 1000.0), 0, 65535).astype(np.uint16)[..., None]
         return self._shade(z, hit, self.depth_camera.last_geom_ids), depth_mm
 
-    def close(self) -> None:
-        self.depth_camera.close()
-
     def _shade(self, z: np.ndarray, hit: np.ndarray, geom_ids: np.ndarray) -> np.ndarray:
-        """Lambert shading with normals from the depth image, in float32 (~6x faster than via 3-D points).
+        """Lambert shading with normals from the depth image, in float32.
 
         A pixel's point is P = z (x_u, y_v, 1), so dP/du x dP/dv is parallel to
         n = (-fx z_u, -fy z_v, z + fx x_u z_u + fy y_v z_v) (divided by z / (fx fy) > 0): only the two
