@@ -19,6 +19,7 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("mujoco")
 
 from lerobot_focal.robots.ur10e import UR10e  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde_backend import REFUSAL_GRACE_S  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError  # noqa: E402
 
@@ -154,6 +155,22 @@ def test_protective_stop_stops_motion_names_the_cause_and_recovers(emulator, tmp
     finally:
         robot.disconnect()
         emulator.set_protective_stop_policy("pause")
+
+
+def test_a_refusal_the_state_does_not_explain_is_named_once_the_state_had_time_to(robot):
+    """ur_rtde refuses a servoL whose lookahead is outside [0.03, 0.2] s while the controller stays healthy. The
+    driver waits REFUSAL_GRACE_S for state that could explain a refusal (a protective stop arrives that way) and
+    then reports the refusal itself."""
+    tcp = robot.backend.session.snapshot.values["tcp"]
+    robot.backend.session.send("servoL", list(tcp), 0.0, 0.0, 0.008, 0.001, 300.0)
+    sent = time.monotonic()
+    with pytest.raises(RobotFaultError, match=r"refused servoL .*looked healthy.*reconnect"):
+        while time.monotonic() - sent < 3.0:
+            robot.backend.check_health()
+            time.sleep(0.005)
+    assert time.monotonic() - sent >= REFUSAL_GRACE_S
+    robot.backend.check_health()  # reported once; the arm is still usable
+    _drive(robot, {"ee_y.vel": 0.05}, 3)
 
 
 def test_network_blip_shorter_than_the_watchdog_is_ridden_out_a_longer_one_is_not(robot, emulator):

@@ -45,6 +45,9 @@ _SAFETY_MODE_NAMES = {
     13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
 }
 _STATUS_BIT_PROGRAM_RUNNING = 1 << 1  # robot_status_bits
+# How long after a refusal the state may take to show its cause (see check_health): many RTDE periods even at
+# 125 Hz, and well under one control period of a 10 Hz loop.
+REFUSAL_GRACE_S = 0.1
 _RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
 
 
@@ -300,7 +303,13 @@ class RtdeBackend:
                 "robot.recover() to re-upload it, or reconnect."
             )
         if len(s.failures) > self._failures_seen:
-            method, value = s.failures[-1]
+            method, value, arrived_at = s.failures[-1]
+            # ur_rtde's control connection can report a refusal a few RTDE packages before the receive
+            # connection's state explains it (a protective stop stops the script; both arrive within ms). A
+            # refusal is unexplained only once state that arrived well after it still looks healthy; until then
+            # the next check names the real cause above. The refused command moved nothing meanwhile.
+            if s.snapshot.received_at < arrived_at + REFUSAL_GRACE_S:
+                return
             self._failures_seen = len(s.failures)
             raise RobotFaultError(
                 f"UR10e (rtde): the controller refused {method} ({value!r}) although its state looked healthy. "

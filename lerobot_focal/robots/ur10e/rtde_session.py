@@ -109,7 +109,8 @@ class RtdeSession:
     def __init__(self, host: str, frequency: float = -1.0, snapshot_period_s: float = 0.01):
         self.host, self.frequency, self.snapshot_period_s = host, frequency, snapshot_period_s
         self.snapshot = Snapshot()
-        self.failures: list[tuple[str, Any]] = []  # commands ur_rtde refused (method, result)
+        # Commands ur_rtde refused: (method, result, monotonic time the refusal arrived).
+        self.failures: list[tuple[str, Any, float]] = []
         self._proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
         self._send_lock = threading.Lock()
@@ -207,7 +208,7 @@ class RtdeSession:
                     waiter[1].extend([ok, value])
                     waiter[0].set()
             elif kind == "failed":
-                self.failures.append((msg[1], msg[2]))
+                self.failures.append((msg[1], msg[2], time.monotonic()))
         if self._dead is None:
             self._dead = self._exit_code()
         for event, _ in list(self._replies.values()):
