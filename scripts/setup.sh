@@ -34,6 +34,12 @@ find_python() {
 ./scripts/system_libs.sh
 
 if [ ! -x "$VENV/bin/python" ] || ! is_py312 "$VENV/bin/python"; then
+    if [ -n "${PYTHON:-}" ] && ! is_py312 "$PYTHON"; then
+        version="$("$PYTHON" --version 2>/dev/null || echo 'it does not run')"
+        echo "error: PYTHON=$PYTHON is not a Python ≥ 3.12 interpreter ($version)." >&2
+        echo "Fix: point PYTHON at a Python 3.12 binary, or unset it to let this script look for one." >&2
+        exit 1
+    fi
     if ! PY="$(find_python)"; then
         echo "error: LeRobot ≥ 0.5 needs Python ≥ 3.12 and none was found." >&2
         echo "Fix: install Python 3.12 (e.g. 'pyenv install 3.12') or run with PYTHON=/path/to/python3.12." >&2

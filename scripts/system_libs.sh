@@ -13,10 +13,11 @@
 set -euo pipefail
 
 # ldconfig's output is read whole before grep: `ldconfig -p | grep -q` fails at random under pipefail (grep
-# exits at the first match, ldconfig then dies of SIGPIPE).
+# exits at the first match, ldconfig then dies of SIGPIPE). ldconfig lives in /sbin, which a Debian user's PATH
+# lacks: without it every library would read as missing.
 has_lib() {
     local libs
-    libs="$(ldconfig -p 2>/dev/null || true)"
+    libs="$(PATH="$PATH:/usr/sbin:/sbin" ldconfig -p 2>/dev/null || true)"
     grep -qE "$1" <<<"$libs"
 }
 
@@ -50,11 +51,15 @@ if [ "$(id -u)" -ne 0 ]; then
 fi
 if command -v apt-get >/dev/null 2>&1 && [ "${as_root[0]:-}" != none ]; then
     echo "[setup] installing system packages: $missing"
+    apt_install() { "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "$@"; }
+    # First try with the package lists as they are; its errors are dropped, since empty or stale lists (a fresh
+    # container: "E: Unable to locate package") are what the update and retry fix. Neither attempt may end the
+    # script under set -e: whether the libraries arrived is checked below, and a failure still reaches the
+    # LEROBOT_FOCAL_SKIP_SYSTEM_LIBS warning or the error naming the packages.
     # shellcheck disable=SC2086
-    if ! "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $missing 2>&1 >/dev/null | quiet_debconf; then
-        "${as_root[@]}" apt-get update -qq
+    if ! apt_install $missing >/dev/null 2>&1; then
         # shellcheck disable=SC2086
-        "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $missing 2>&1 >/dev/null | quiet_debconf
+        { "${as_root[@]}" apt-get update -qq; apt_install $missing; } 2>&1 >/dev/null | quiet_debconf || true
     fi
     missing="$(missing_packages)"
     if [ -z "$missing" ]; then
@@ -69,8 +74,8 @@ if [ "${LEROBOT_FOCAL_SKIP_SYSTEM_LIBS:-0}" = 1 ]; then
     exit 0
 fi
 echo "error: missing system packages: $missing" >&2
-echo "  ffmpeg: FFmpeg 4-7 shared libraries for torchcodec (LeRobot's video decoder)" >&2
-echo "  libosmesa6: OSMesa, MuJoCo's offscreen OpenGL without a GPU" >&2
+case " $missing " in *" ffmpeg "*) echo "  ffmpeg: FFmpeg 4-7 shared libraries for torchcodec (LeRobot's video decoder)" >&2 ;; esac
+case " $missing " in *" libosmesa6 "*) echo "  libosmesa6: OSMesa, MuJoCo's offscreen OpenGL without a GPU" >&2 ;; esac
 echo "Fix: sudo apt-get install $missing (other distributions: the FFmpeg and OSMesa libraries), then rerun;" >&2
 echo "or set LEROBOT_FOCAL_SKIP_SYSTEM_LIBS=1 to continue without them." >&2
 exit 1
