@@ -27,3 +27,12 @@ def test_lerobot_command_loads_torchcodec_quietly():
     assert "libtorchcodec" not in out and "Falling back to 'pyav'" not in out, (
         "torchcodec cannot load FFmpeg: run ./scripts/setup.sh (installs ffmpeg) or apt-get install ffmpeg\n" + out[-3000:]
     )
+
+
+def test_check_finds_ldconfig_outside_a_users_path():
+    """A Debian user's PATH has no /sbin, where ldconfig lives: the check must still see the installed libraries."""
+    env = {**os.environ, "PATH": "/usr/local/bin:/usr/bin:/bin"}
+    proc = subprocess.run(
+        ["bash", str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True, timeout=60, env=env
+    )
+    assert proc.returncode == 0, proc.stderr
