@@ -3,6 +3,11 @@
 Only what :mod:`lerobot_focal.datasets.parquet_footer` needs to rebuild a footer: structs are read into
 ``{field_id: (type, value)}`` dicts that keep each field's wire type, so they can be edited and written back.
 Lists are ``(element_type, [values])``; maps ``(key_type, value_type, [(k, v), ...])``.
+
+Why not a library: pyarrow reads and writes footers but exposes no way to write one for existing pages;
+fastparquet's Thrift objects live in its internal ``cencoding`` module (no public API to build on); a generic
+Thrift library (thriftpy2) would need Parquet's IDL file bundled with this project. The compact protocol is
+small and fixed, and a rebuilt file is always checked by reading it back with pyarrow.
 """
 
 from __future__ import annotations
