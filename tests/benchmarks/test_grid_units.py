@@ -160,7 +160,7 @@ def test_demo_heldout_and_evaluation_seeds_never_overlap():
 
 
 def test_a_second_evaluation_of_the_final_checkpoint_keeps_its_own_files_and_the_same_episodes(tmp_path):
-    """ema_eval re-evaluates the grid's final checkpoint (online weights) on the same fresh episodes: same seed
+    """variant_eval re-evaluates the grid's final checkpoint (e.g. with online weights) on the same fresh episodes: same seed
     and episode count, but its own episode file, output folder and job name, so the grid's own stay intact."""
     from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
     from lerobot_focal.benchmarks.grid.run import final_eval_command

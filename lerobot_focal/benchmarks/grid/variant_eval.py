@@ -1,0 +1,113 @@
+"""Would focal's finished grid checkpoints act better with another inference setting?
+
+    python -m lerobot_focal.benchmarks.grid.variant_eval --variant online --out docs/benchmarks/grid_cpu_plateau
+    python -m lerobot_focal.benchmarks.grid.variant_eval --variant nfe4 --tasks basketball,pick-place --out ...
+
+Run it between grid invocations, not beside a running grid (one heavy job at a time).
+
+For every finished focal-family run of a grid with a fresh-episode evaluation, evaluates the same final
+checkpoint on the same fresh episodes (same seeds) with the variant's `lerobot-eval` overrides and compares it,
+pair by pair, with the grid's number (EMA weights, one network evaluation per chunk). Variants:
+
+* ``online``: the online weights instead of the EMA (``--policy.use_ema_for_inference=false``), to choose the
+  default at the grid's budget;
+* ``nfe2`` / ``nfe4``: 2 or 4 Euler steps along the learned flow instead of one, to tell whether one-step
+  generation is what limits a task, or what the network learned.
+
+Writes ``variant_<name>.json`` and ``variant_<name>.md`` beside the grid's report; resumable (runs already
+compared are skipped).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from .metrics import paired_difference
+from .results import ResultsFile
+from .run import _call, _env, final_eval_command
+
+
+@dataclass(frozen=True)
+class Variant:
+    label: str  # what the compared column shows
+    overrides: tuple[str, ...]  # lerobot-eval arguments on top of the grid's final evaluation
+
+
+VARIANTS: dict[str, Variant] = {
+    "online": Variant("online weights", ("--policy.use_ema_for_inference=false",)),
+    "nfe2": Variant("2 Euler steps", ("--policy.num_inference_steps=2",)),
+    "nfe4": Variant("4 Euler steps", ("--policy.num_inference_steps=4",)),
+}
+GRID_LABEL = "grid (EMA, 1 step)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.variant_eval", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--variant", choices=sorted(VARIANTS), required=True)
+    p.add_argument("--out", type=Path, required=True, help="the grid's --out directory")
+    p.add_argument("--work", type=Path, default=Path("outputs/bench"), help="the grid's --work directory")
+    p.add_argument("--methods", default="focal,focal_online", help="focal-family methods to compare")
+    p.add_argument("--tasks", default="", help="only these tasks (comma-separated; default: all)")
+    p.add_argument("--seeds", default="", help="only these seeds (comma-separated; default: all)")
+    args = p.parse_args(argv)
+    variant = VARIANTS[args.variant]
+
+    from .driver import build_specs, parse_args
+
+    grid = json.loads((args.out / "grid.json").read_text())
+    done_path = args.out / f"variant_{args.variant}.json"
+    done = json.loads(done_path.read_text()) if done_path.exists() else {}
+    tasks = {t for t in args.tasks.split(",") if t}
+    seeds = {int(s) for s in args.seeds.split(",") if s}
+    records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
+               if r["method"] in args.methods.split(",") and "success_fresh" in r
+               and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
+    grid_argv = ["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
+                 ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
+                 "--seeds", ",".join(map(str, grid["seeds"]))]
+    for key, value in grid.get("overrides", {}).items():
+        grid_argv += [f"--{key.replace('_', '-')}", str(value)]
+    specs = {s.key: s for s in build_specs(parse_args(grid_argv))[0]}
+    for r in records:
+        if r["key"] in done or r["key"] not in specs:
+            continue
+        spec = specs[r["key"]]
+        run_dir = spec.run_dir
+        checkpoint = run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
+        cmd = [*final_eval_command(spec, checkpoint, name=args.variant), *variant.overrides]
+        _call(cmd, run_dir / f"{args.variant}_eval.log", _env(spec.preset), f"lerobot-eval ({variant.label})")
+        eps = [json.loads(x) for x in (run_dir / f"{args.variant}_episodes.jsonl").read_text().splitlines() if x]
+        eps = [e for e in eps if e.get("seed") is not None]
+        done[r["key"]] = {"grid": r["success_fresh"], "variant": sum(e["success"] for e in eps) / len(eps),
+                          "episodes": len(eps)}
+        done_path.write_text(json.dumps(done, indent=1))
+        print(f"{r['key']}: {GRID_LABEL} {done[r['key']]['grid']:.2f}, {variant.label} "
+              f"{done[r['key']]['variant']:.2f}", flush=True)
+    (args.out / f"variant_{args.variant}.md").write_text(render(args.variant, done))
+    print(render(args.variant, done))
+    return 0
+
+
+def render(name: str, done: dict[str, dict]) -> str:
+    variant = VARIANTS[name]
+    keys = sorted(done)
+    md = [f"# The grid's final checkpoints with {variant.label} (fresh episodes)", "",
+          f"`python -m lerobot_focal.benchmarks.grid.variant_eval --variant {name} --out <grid>`: each run's final "
+          f"checkpoint on the same fresh episodes as the grid's number, with `{' '.join(variant.overrides)}`.", "",
+          f"| run | episodes | {GRID_LABEL} | {variant.label} |", "|---|---|---|---|"]
+    md += [f"| {k} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % | {done[k]['variant'] * 100:.0f} % |"
+           for k in keys]
+    d = paired_difference([done[k]["variant"] for k in keys], [done[k]["grid"] for k in keys])
+    if d["n"]:
+        ci = "" if d["lo"] != d["lo"] else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
+        md += ["", f"{variant.label} − grid: {d['mean'] * 100:+.1f} points over {d['n']} runs{ci} "
+               f"(better / equal / worse: {d['wins']} / {d['ties']} / {d['losses']})."]
+    return "\n".join(md) + "\n"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
