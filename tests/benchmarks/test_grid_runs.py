@@ -94,8 +94,11 @@ def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
     else:
         proc.kill()
         pytest.fail("the run never started")
-    run_dir = work / "runs" / "cpu" / "reach" / "wo_las" / "seed0"
-    while time.time() < deadline and not list(run_dir.glob("train.log")):
+    run_dir = work / "runs" / PRESETS["cpu"].with_overrides(**TINY).runs_folder / "reach" / "wo_las" / "seed0"
+    while not list(run_dir.glob("train.log")):
+        if time.time() > deadline:
+            proc.kill()
+            pytest.fail(f"no train.log in {run_dir}")
         time.sleep(0.2)
     time.sleep(3)  # lerobot-train is up
     proc.send_signal(signal.SIGINT)

@@ -95,6 +95,29 @@ def test_method_and_preset_errors_say_what_to_do():
     assert [m.name for m in resolve_methods("core")] == ["focal", "wo_las", "wo_fco_las", "diffusion"]
 
 
+def test_overridden_presets_get_their_own_run_folders_and_share_data_only_when_the_demos_match(tmp_path):
+    """A grid with --down-dims in the same --work dir must not reuse (on a restart: delete) the named preset's run
+    folders, but may train on its datasets; fewer demos must not silently train on a bigger dataset."""
+    from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
+
+    def spec(*extra):
+        argv = ["--preset", "cpu_plateau", "--tasks", "basketball", "--methods", "focal", "--seeds", "0",
+                "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work"), *extra]
+        specs, grid = build_specs(parse_args(argv))
+        return specs[0], grid
+
+    plain, _ = spec()
+    same, _ = spec("--down-dims", "32,64,128")  # the preset's own value: not an override
+    wide, grid = spec("--down-dims", "64,128,256")
+    fewer, _ = spec("--demos", "5")
+    assert plain.run_dir == same.run_dir and plain.run_dir.parts[-4] == "cpu_plateau"
+    assert wide.run_dir != plain.run_dir and wide.run_dir.parts[-4] == "cpu_plateau+down_dims=64-128-256"
+    assert wide.data == plain.data
+    assert fewer.data.train_root != plain.data.train_root and fewer.run_dir != plain.run_dir
+    assert grid["overrides"] == {"down_dims": (64, 128, 256)}
+    assert "--policy.down_dims=[64,128,256]" in METHODS["focal"].train_args(wide.preset)
+
+
 def test_paired_difference_interval_and_counts():
     d = paired_difference([0.9, 0.8, 0.7, 0.6], [0.5, 0.8, 0.4, 0.7])
     diffs = np.array([0.4, 0.0, 0.3, -0.1])

@@ -46,7 +46,7 @@ def obs_types(preset: GridPreset, obs_type: str | None = None) -> str:
 
 def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None) -> TaskData:
     obs_type = obs_type or preset.obs_type
-    base = work / "data" / preset.name / task
+    base = work / "data" / preset.data_folder / task
     if obs_type != preset.obs_type:
         base = base / obs_type
     return TaskData(task, base / "train", f"local/{task}_train", base / "heldout", f"local/{task}_heldout")
@@ -80,7 +80,7 @@ def ensure_task_data(work: Path, task: str, preset: GridPreset, obs_type: str | 
 def collect_task_data(data: TaskData, preset: GridPreset, obs_type: str | None, log_dir: Path) -> TaskData:
     """Called by every run before it trains: the first run of a (task, obs type) collects, later ones find the
     data complete; a lock file keeps concurrent runs from writing the same dataset twice."""
-    name = f"{preset.name}_{data.task}_{obs_type or preset.obs_type}"
+    name = f"{preset.data_folder}_{data.task}_{obs_type or preset.obs_type}"
     log = log_dir / f"collect_{name}.log"
     log_dir.mkdir(parents=True, exist_ok=True)
     with open(log_dir / f".collect_{name}.lock", "w") as lock:

@@ -51,7 +51,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
+    p.add_argument("--down-dims", default=None, type=_int_tuple,
+                   help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
     return p.parse_args(argv)
+
+
+def _int_tuple(text: str) -> tuple[int, ...]:
+    try:
+        dims = tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        dims = ()
+    if not dims or min(dims) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers such as 64,128,256; got {text!r}")
+    return dims
 
 
 def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
@@ -60,7 +72,7 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     overrides = {k: v for k, v in dict(
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
-        final_episodes=args.final_episodes,
+        final_episodes=args.final_episodes, down_dims=getattr(args, "down_dims", None),
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:

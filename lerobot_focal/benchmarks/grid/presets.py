@@ -44,11 +44,38 @@ class GridPreset:
     # optimistic (it picks the best checkpoints on the very episodes it reports), this number is not.
     final_episodes: int = 0
 
+    # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
+    overridden: tuple[str, ...] = ()
+
     def with_overrides(self, **kwargs) -> GridPreset:
-        return replace(self, **{k: v for k, v in kwargs.items() if v is not None})
+        changed = {k: v for k, v in kwargs.items() if v is not None and v != getattr(self, k)}
+        return replace(self, **changed, overridden=tuple(sorted(set(self.overridden) | set(changed))))
+
+    def _folder(self, fields: tuple[str, ...] | None = None) -> str:
+        parts = [f"{k}={_folder_value(getattr(self, k))}" for k in self.overridden if fields is None or k in fields]
+        return self.name + ("+" + ",".join(parts) if parts else "")
+
+    @property
+    def runs_folder(self) -> str:
+        """Where this preset's runs live under the work dir: an overridden preset never reuses (or, on a restart,
+        deletes) the named preset's run folders."""
+        return self._folder()
+
+    @property
+    def data_folder(self) -> str:
+        """Where its datasets live: shared by every preset that collects the same demos."""
+        return self._folder(DATA_FIELDS)
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+#: The fields the collected datasets depend on (besides the observation types, which name their own folders).
+DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state")
+
+
+def _folder_value(v: object) -> str:
+    return "-".join(map(str, v)) if isinstance(v, tuple | list) else str(v)
 
 
 PRESETS: dict[str, GridPreset] = {

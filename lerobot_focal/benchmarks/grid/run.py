@@ -52,7 +52,7 @@ class RunSpec:
 
     @property
     def run_dir(self) -> Path:
-        return self.work / "runs" / self.preset.name / self.task / self.method / f"seed{self.seed}"
+        return self.work / "runs" / self.preset.runs_folder / self.task / self.method / f"seed{self.seed}"
 
     @property
     def obs_type(self) -> str:

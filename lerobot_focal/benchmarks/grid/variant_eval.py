@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
                  ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
                  "--seeds", ",".join(map(str, grid["seeds"]))]
     for key, value in grid.get("overrides", {}).items():
-        grid_argv += [f"--{key.replace('_', '-')}", str(value)]
+        grid_argv += [f"--{key.replace('_', '-')}", ",".join(map(str, value)) if isinstance(value, list) else str(value)]
     specs = {s.key: s for s in build_specs(parse_args(grid_argv))[0]}
     for r in records:
         if r["key"] in done or r["key"] not in specs:
