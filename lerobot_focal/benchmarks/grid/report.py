@@ -173,8 +173,8 @@ def write_report(out_dir: Path) -> Path:
     md = [f"# Benchmark grid: preset `{preset['name']}`", "", preset["notes"], ""]
     todo = len(grid["tasks"]) * len(grid["methods"]) * len(grid["seeds"]) - len(records)
     hours = sum(r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0) for r in records) / 3600
-    md += [f"Wall time of the {len(records)} finished runs: {hours:.1f} h of training and evaluation (one run at a "
-           "time, other work sharing the machine)"
+    md += [f"Wall time of the {len(records)} finished runs: {hours:.1f} h of training and evaluation, summed over "
+           "the runs (other work sharing the machine; with `--jobs` > 1 runs overlap, so the grid took less)"
            + (f"; {todo} runs of the grid are still to do (rerun the grid command to continue)." if todo > 0 else ".")
            , ""]
     if grid.get("overrides"):
