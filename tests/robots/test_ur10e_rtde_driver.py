@@ -21,6 +21,7 @@ pytest.importorskip("mujoco")
 from lerobot_focal.robots.ur10e import UR10e  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_backend import REFUSAL_GRACE_S  # noqa: E402
 from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde_session import DashboardClient  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError  # noqa: E402
 
 from .ur_emulator_support import free_loopback_host, rtde_config, wait_still  # noqa: E402
@@ -155,6 +156,15 @@ def test_protective_stop_stops_motion_names_the_cause_and_recovers(emulator, tmp
     finally:
         robot.disconnect()
         emulator.set_protective_stop_policy("pause")
+        if emulator.status()["protective_stop"]:  # failed before recover(): unlock, as on the pendant, so the
+            _unlock_protective_stop(emulator)  # module's other tests get a usable controller, not a cascade
+
+
+def _unlock_protective_stop(emulator, timeout_s: float = 15.0) -> None:
+    dash = DashboardClient(emulator.host)
+    deadline = time.monotonic() + timeout_s
+    while dash.request("unlock protective stop") != "Protective stop releasing" and time.monotonic() < deadline:
+        time.sleep(0.5)
 
 
 def test_a_refusal_the_state_does_not_explain_is_named_once_the_state_had_time_to(robot):
