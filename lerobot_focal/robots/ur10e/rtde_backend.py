@@ -111,6 +111,7 @@ class RtdeBackend:
                 "holds RTDE (a second control client is refused with IN_USE)."
             ) from e
         self.session = session
+        self._failures_seen = 0  # counts this session's refusals (a reconnect starts a new list)
         try:
             # ur_rtde 1.6.5 does not upload its script to PolyScope X: only a program started there could run it.
             wait_s = min(self.config.rtde_connect_timeout_s, 5.0) if major >= 10 else self.config.rtde_connect_timeout_s
