@@ -136,8 +136,10 @@ def main(argv: list[str] | None = None) -> int:
         results.append(record)
         bar.update(1)
         if record["status"] == "ok":
+            fresh = record.get("success_fresh")
+            fresh_text = f", final checkpoint on fresh episodes {fresh:.2f}" if fresh is not None else ""
             bar.write(f"[grid] {record['key']}: top-{todo[0].preset.top_k} success {record['success_top_k']:.2f}, "
-                      f"final {record['success_final']:.2f}, ATV {record['atv']:.4f}, "
+                      f"last evaluation {record['success_final']:.2f}{fresh_text}, ATV {record['atv']:.4f}, "
                       f"{record['wall_s'] / 60:.1f} min")
         else:
             failed.append(record["key"])
