@@ -304,13 +304,15 @@ class RtdeBackend:
                 "robot.recover() to re-upload it, or reconnect."
             )
         if len(s.failures) > self._failures_seen:
-            method, value, arrived_at = s.failures[-1]
             # ur_rtde's control connection can report a refusal a few RTDE packages before the receive
             # connection's state explains it (a protective stop stops the script; both arrive within ms). A
             # refusal is unexplained only once state that arrived well after it still looks healthy; until then
-            # the next check names the real cause above. The refused command moved nothing meanwhile.
-            if s.snapshot.received_at < arrived_at + REFUSAL_GRACE_S:
+            # the next check names the real cause above. The refused command moved nothing meanwhile. The grace
+            # counts from the first refusal not yet reported, so a refusal every control step cannot extend it.
+            first_arrived_at = s.failures[self._failures_seen][2]
+            if s.snapshot.received_at < first_arrived_at + REFUSAL_GRACE_S:
                 return
+            method, value, _ = s.failures[-1]
             self._failures_seen = len(s.failures)
             raise RobotFaultError(
                 f"UR10e (rtde): the controller refused {method} ({value!r}) although its state looked healthy. "
