@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import json
-import subprocess
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,11 +59,10 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
         "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
     ]
+    from .run import _call  # the grid's stoppable child processes (run imports this module)
+
     log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "a") as f:
-        rc = subprocess.call(cmd, stdout=f, stderr=subprocess.STDOUT)
-    if rc != 0:
-        raise RuntimeError(f"collecting {task} demos failed (exit {rc}); see {log}")
+    _call(cmd, log, dict(os.environ), f"collecting {task} demos")
     have = json.loads((root / "meta" / "info.json").read_text())["total_episodes"]
     if have < episodes:
         raise RuntimeError(

@@ -48,6 +48,9 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, retries: int = 1, j
             for fut in done:
                 on_result(fut.result())
     except KeyboardInterrupt:
+        # Queued runs first: a worker freed by stop_all() would otherwise start the next one (and collect its
+        # data) before the pool is shut down.
+        pool.shutdown(wait=False, cancel_futures=True)
         stop_all()  # in-flight lerobot-train processes end; their threads raise GridStopped, nothing is retried
         raise
     finally:

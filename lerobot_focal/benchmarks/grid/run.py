@@ -179,6 +179,8 @@ def _call(cmd: list[str], log: Path, env: dict[str, str], what: str) -> None:
 
 def run_one(spec: RunSpec) -> dict:
     """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed."""
+    if _STOPPING.is_set():
+        raise GridStopped("the grid is stopping")  # before anything is deleted, logged or collected
     out = spec.run_dir
     if out.exists():
         shutil.rmtree(out)  # an interrupted earlier attempt: start it over (lerobot-train needs a new dir)
