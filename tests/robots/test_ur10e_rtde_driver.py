@@ -157,14 +157,7 @@ def test_protective_stop_stops_motion_names_the_cause_and_recovers(emulator, tmp
         robot.disconnect()
         emulator.set_protective_stop_policy("pause")
         if emulator.status()["protective_stop"]:  # failed before recover(): unlock, as on the pendant, so the
-            _unlock_protective_stop(emulator)  # module's other tests get a usable controller, not a cascade
-
-
-def _unlock_protective_stop(emulator, timeout_s: float = 15.0) -> None:
-    dash = DashboardClient(emulator.host)
-    deadline = time.monotonic() + timeout_s
-    while dash.request("unlock protective stop") != "Protective stop releasing" and time.monotonic() < deadline:
-        time.sleep(0.5)
+            DashboardClient(emulator.host).unlock_protective_stop(15.0)  # next tests get a usable controller
 
 
 def test_a_refusal_the_state_does_not_explain_is_named_once_the_state_had_time_to(robot):

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .presets import GridPreset
+from .processes import run_logged
 
 #: Reset seeds of the training demos. LeRobot's periodic evaluation inside `lerobot-train` resets its envs with
 #: seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and a
@@ -59,10 +60,8 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
         "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
     ]
-    from .run import _call  # the grid's stoppable child processes (run imports this module)
-
     log.parent.mkdir(parents=True, exist_ok=True)
-    _call(cmd, log, dict(os.environ), f"collecting {task} demos")
+    run_logged(cmd, log, dict(os.environ), f"collecting {task} demos")
     have = json.loads((root / "meta" / "info.json").read_text())["total_episodes"]
     if have < episodes:
         raise RuntimeError(

@@ -72,7 +72,7 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     overrides = {k: v for k, v in dict(
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
-        final_episodes=args.final_episodes, down_dims=getattr(args, "down_dims", None),
+        final_episodes=args.final_episodes, down_dims=args.down_dims,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:

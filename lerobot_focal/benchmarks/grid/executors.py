@@ -12,7 +12,8 @@ import logging
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
-from .run import GridStopped, RunSpec, failure_record, run_one, stop_all
+from .processes import GridStopped, stop_all
+from .run import RunSpec, failure_record, run_one
 
 OnResult = Callable[[dict], None]
 

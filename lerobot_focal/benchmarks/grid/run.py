@@ -12,9 +12,7 @@ import json
 import os
 import re
 import shutil
-import subprocess
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,16 +23,13 @@ from .datasets import TaskData, collect_task_data
 from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
+from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
 #: Environment seeds of the final fresh-episode evaluation: seed k of a run evaluates FINAL_EVAL_SEED + 1000·k
 #: onwards, far from the periodic evaluations (seeds k…), the demos (0…) and the held-out set (100 000…).
 FINAL_EVAL_SEED = 200_000
-
-
-class RunFailed(RuntimeError):
-    """A run that did not produce results; the message says which step and where its log is."""
 
 
 @dataclass(frozen=True)
@@ -122,77 +117,29 @@ def train_command(spec: RunSpec) -> list[str]:
     ]
 
 
-def _env(preset: GridPreset) -> dict[str, str]:
+def child_env(preset: GridPreset) -> dict[str, str]:
+    """Environment of a run's LeRobot processes: offline, no W&B, the preset's torch threads."""
     env = {**os.environ, "WANDB_MODE": "disabled", "HF_HUB_OFFLINE": "1", "LEROBOT_FOCAL_FAST_READER": "1"}
     if preset.num_threads:
         env["OMP_NUM_THREADS"] = env["MKL_NUM_THREADS"] = str(preset.num_threads)
     return env
 
 
-class GridStopped(RuntimeError):
-    """The grid is being interrupted: do not start (or retry) anything."""
-
-
-#: Child processes of runs in flight in this process, so an interrupted driver can stop them (they run in their
-#: own sessions, so a terminal's Ctrl-C reaches only the driver, which then stops them in order).
-_RUNNING: set[subprocess.Popen] = set()
-_STOPPING = threading.Event()
-
-
-def stop_all() -> None:
-    """Stop every run in flight in this process and refuse new ones (the driver's Ctrl-C path)."""
-    _STOPPING.set()
-    for proc in list(_RUNNING):
-        proc.terminate()
-    for proc in list(_RUNNING):
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-
-
-def _call(cmd: list[str], log: Path, env: dict[str, str], what: str) -> None:
-    if _STOPPING.is_set():
-        raise GridStopped("the grid is stopping")
-    with open(log, "ab") as f:
-        f.write(f"\n$ {' '.join(cmd)}\n".encode())
-        f.flush()
-        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-        _RUNNING.add(proc)
-        try:
-            rc = proc.wait()
-        except BaseException:  # Ctrl-C in a single-job driver lands here: the child is in its own session
-            proc.terminate()
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-            raise
-        finally:
-            _RUNNING.discard(proc)
-    if _STOPPING.is_set():
-        raise GridStopped("the grid is stopping")
-    if rc != 0:
-        tail = log.read_text(errors="replace").splitlines()[-15:]
-        raise RunFailed(f"{what} exited with {rc}; log: {log}\n" + "\n".join(tail))
-
-
 def run_one(spec: RunSpec) -> dict:
     """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed."""
-    if _STOPPING.is_set():
-        raise GridStopped("the grid is stopping")  # before anything is deleted, logged or collected
+    refuse_if_stopping()  # before anything is deleted, logged or collected
     out = spec.run_dir
     if out.exists():
         shutil.rmtree(out)  # an interrupted earlier attempt: start it over (lerobot-train needs a new dir)
     out.mkdir(parents=True)
     with open(spec.work / "attempts.log", "a") as f:  # every start of every run, kept across retries
         f.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {spec.key} pid={os.getpid()}\n")
-    env = _env(spec.preset)
+    env = child_env(spec.preset)
     p = spec.preset
     collect_task_data(spec.data, p, None if spec.obs_type == p.obs_type else spec.obs_type, spec.work / "logs")
 
     t0 = time.perf_counter()
-    _call(train_command(spec), out / "train.log", env, "lerobot-train")
+    run_logged(train_command(spec), out / "train.log", env, "lerobot-train")
     wall_s = time.perf_counter() - t0
 
     episodes = [json.loads(line) for line in (out / "eval_episodes.jsonl").read_text().splitlines() if line]
@@ -205,7 +152,7 @@ def run_one(spec: RunSpec) -> dict:
     final: dict = {}
     if p.final_episodes:
         t1 = time.perf_counter()
-        _call(final_eval_command(spec, checkpoint), out / "final_eval.log", env, "final lerobot-eval")
+        run_logged(final_eval_command(spec, checkpoint), out / "final_eval.log", env, "final lerobot-eval")
         fresh = [json.loads(x) for x in (out / "final_episodes.jsonl").read_text().splitlines() if x]
         fresh = [e for e in fresh if e.get("seed") is not None]
         if len(fresh) != p.final_episodes:
@@ -217,7 +164,7 @@ def run_one(spec: RunSpec) -> dict:
             "final_eval_s": time.perf_counter() - t1,
         }
     analysis_path = out / "analysis.json"
-    _call(
+    run_logged(
         [sys.executable, "-m", "lerobot_focal.benchmarks.grid.analyze", str(checkpoint), str(spec.data.heldout_root),
          spec.data.heldout_repo_id, str(analysis_path), "--device", p.device],
         out / "analyze.log", env, "checkpoint analysis",

@@ -27,7 +27,8 @@ from pathlib import Path
 
 from .metrics import paired_difference
 from .results import ResultsFile
-from .run import _call, _env, final_eval_command
+from .processes import run_logged
+from .run import child_env, final_eval_command
 
 
 @dataclass(frozen=True)
@@ -66,12 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
                if r["method"] in args.methods.split(",") and "success_fresh" in r
                and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
-    grid_argv = ["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
-                 ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
-                 "--seeds", ",".join(map(str, grid["seeds"]))]
-    for key, value in grid.get("overrides", {}).items():
-        grid_argv += [f"--{key.replace('_', '-')}", ",".join(map(str, value)) if isinstance(value, list) else str(value)]
-    specs = {s.key: s for s in build_specs(parse_args(grid_argv))[0]}
+    grid_args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
+                            ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
+                            "--seeds", ",".join(map(str, grid["seeds"]))])
+    for key, value in grid.get("overrides", {}).items():  # as the grid's parse_args gave them (JSON: list → tuple)
+        setattr(grid_args, key, tuple(value) if isinstance(value, list) else value)
+    specs = {s.key: s for s in build_specs(grid_args)[0]}
     for r in records:
         if r["key"] in done or r["key"] not in specs:
             continue
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = spec.run_dir
         checkpoint = run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
         cmd = [*final_eval_command(spec, checkpoint, name=args.variant), *variant.overrides]
-        _call(cmd, run_dir / f"{args.variant}_eval.log", _env(spec.preset), f"lerobot-eval ({variant.label})")
+        run_logged(cmd, run_dir / f"{args.variant}_eval.log", child_env(spec.preset), f"lerobot-eval ({variant.label})")
         eps = [json.loads(x) for x in (run_dir / f"{args.variant}_episodes.jsonl").read_text().splitlines() if x]
         eps = [e for e in eps if e.get("seed") is not None]
         done[r["key"]] = {"grid": r["success_fresh"], "variant": sum(e["success"] for e in eps) / len(eps),

@@ -22,7 +22,13 @@ from .backend import ArmState
 from .camera_info import CameraInfo, pose_matrix
 from .config_ur10e import UR10eConfig
 from .kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
-from .rtde_session import DashboardClient, RtdeSession, SessionError, probe_controller_version
+from .rtde_session import (
+    PROTECTIVE_STOP_RELEASED,
+    DashboardClient,
+    RtdeSession,
+    SessionError,
+    probe_controller_version,
+)
 from .safety import RobotFaultError
 
 logger = logging.getLogger(__name__)
@@ -334,13 +340,8 @@ class RtdeBackend:
         dash = DashboardClient(self.config.robot_ip, timeout_s=self.config.rtde_timeout_s)
         deadline = time.monotonic() + timeout_s
         if s.snapshot.values.get("protective_stopped"):
-            reply = ""
-            while time.monotonic() < deadline:
-                reply = dash.request("unlock protective stop")
-                if reply.startswith("Protective stop releasing"):
-                    break
-                time.sleep(0.5)
-            else:
+            reply = dash.unlock_protective_stop(timeout_s)
+            if not reply.startswith(PROTECTIVE_STOP_RELEASED):
                 raise RobotFaultError(f"UR10e (rtde): the protective stop was not unlocked within {timeout_s:.0f} s: {reply!r}")
             dash.request("close safety popup")
             if not s.wait_for(lambda v: not v.get("protective_stopped"), timeout_s=max(0.1, deadline - time.monotonic())):

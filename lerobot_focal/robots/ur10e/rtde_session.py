@@ -71,6 +71,9 @@ def _read_package(s: socket.socket) -> tuple[int, bytes]:
     return ptype, body
 
 
+PROTECTIVE_STOP_RELEASED = "Protective stop releasing"  # the dashboard's reply to an accepted unlock
+
+
 class DashboardClient:
     """One request per call on UR's dashboard server (port 29999), every socket operation time-bounded."""
 
@@ -92,6 +95,16 @@ class DashboardClient:
                 return reply
         except OSError as e:
             raise ConnectionError(f"dashboard server at {self.host}:{self.port} did not answer {line!r}: {e}") from e
+
+    def unlock_protective_stop(self, timeout_s: float, retry_s: float = 0.5) -> str:
+        """Ask until the stop is released or `timeout_s` passes (a controller refuses for 5 s after the stop
+        occurred); returns the last reply, "Protective stop releasing" on success."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            reply = self.request("unlock protective stop")
+            if reply.startswith(PROTECTIVE_STOP_RELEASED) or time.monotonic() + retry_s >= deadline:
+                return reply
+            time.sleep(retry_s)
 
 
 @dataclass
