@@ -4,6 +4,11 @@ evaluation in `focal_metaworld`, checkpoint analysis, the resumable results file
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -71,46 +76,71 @@ def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     assert json.loads(results.path.read_text().splitlines()[0])  # whole lines only
 
 
-def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
-    """Ctrl-C (SIGINT) on the driver: exit 130, the run in flight is stopped (no orphaned lerobot-train), no
-    failure is recorded for it, nothing is retried; the same command then finishes the grid."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *TINY_ARGS, "--methods", "wo_las",
-           "--out", str(out), "--work", str(work)]
+def _interrupt_once_training(cmd: list[str], work: Path, keys: list[str]) -> tuple[str, int]:
+    """Start the grid driver, wait until every run in `keys` has started and its lerobot-train is up, send
+    SIGINT and return (output, return code)."""
     attempts = work / "attempts.log"
-    before = attempts.read_text().count("reach|wo_las|0") if attempts.exists() else 0
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.time() + 300
-    while time.time() < deadline:
-        if attempts.exists() and attempts.read_text().count("reach|wo_las|0") > before:
-            break
-        time.sleep(0.5)
-    else:
-        proc.kill()
-        pytest.fail("the run never started")
-    run_dir = work / "runs" / PRESETS["cpu"].with_overrides(**TINY).runs_folder / "reach" / "wo_las" / "seed0"
-    while not list(run_dir.glob("train.log")):
-        if time.time() > deadline:
+    run_root = work / "runs" / PRESETS["cpu"].with_overrides(**TINY).runs_folder
+    logs = [run_root / task / method / f"seed{seed}" / "train.log"
+            for task, method, seed in (key.split("|") for key in keys)]
+    while not all(log.exists() for log in logs):
+        if time.time() > deadline or proc.poll() is not None:
             proc.kill()
-            pytest.fail(f"no train.log in {run_dir}")
+            started = attempts.read_text() if attempts.exists() else ""
+            pytest.fail(f"not every run of {keys} started; attempts.log:\n{started}")
         time.sleep(0.2)
     time.sleep(3)  # lerobot-train is up
     proc.send_signal(signal.SIGINT)
     output, _ = proc.communicate(timeout=120)
-    assert proc.returncode == 130, output
+    return output, proc.returncode
+
+
+def _children_left(work: Path) -> list[str]:
+    leftover = subprocess.run(["pgrep", "-f", str(work / "runs")], capture_output=True, text=True).stdout.split()
+    return [pid for pid in leftover if int(pid) != os.getpid()]
+
+
+def _starts(work: Path, key: str) -> int:
+    attempts = work / "attempts.log"
+    return attempts.read_text().count(key) if attempts.exists() else 0
+
+
+def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
+    """Ctrl-C (SIGINT) on the driver: exit 130, the run in flight is stopped (no orphaned lerobot-train), no
+    failure is recorded for it, nothing is retried; the same command then finishes the grid."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *TINY_ARGS, "--methods", "wo_las",
+           "--out", str(out), "--work", str(work)]
+    before = _starts(work, "reach|wo_las|0")
+    output, rc = _interrupt_once_training(cmd, work, ["reach|wo_las|0"])
+    assert rc == 130, output
     assert "interrupted" in output
-    leftover = subprocess.run(["pgrep", "-f", str(run_dir)], capture_output=True, text=True).stdout.split()
-    assert [pid for pid in leftover if int(pid) != os.getpid()] == []
+    assert _children_left(work) == []
     assert ResultsFile(out / "results.jsonl").records() == []  # neither ok nor failed
-    assert attempts.read_text().count("reach|wo_las|0") == before + 1  # not retried
+    assert _starts(work, "reach|wo_las|0") == before + 1  # not retried
 
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
     (record,) = ResultsFile(out / "results.jsonl").records()
     assert record["status"] == "ok" and record["key"] == "reach|wo_las|0"
+
+
+def test_interrupted_parallel_grid_starts_none_of_its_queued_runs(work, tmp_path):
+    """With --jobs 2 and four runs, Ctrl-C while two train: both are stopped, and the two queued runs are not
+    started on the way out (worker threads freed by the stop used to pick them up before the pool shut down)."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *TINY_ARGS, "--methods",
+           "time_only_fco,freq_only_fco,fixed_r,anchor_0.4_0.5", "--jobs", "2", "--out", str(out),
+           "--work", str(work)]
+    keys = [f"reach|{m}|0" for m in ("time_only_fco", "freq_only_fco", "fixed_r", "anchor_0.4_0.5")]
+    before = {key: _starts(work, key) for key in keys}
+    output, rc = _interrupt_once_training(cmd, work, keys[:2])
+    assert rc == 130, output
+    assert "interrupted" in output
+    assert _children_left(work) == []
+    assert ResultsFile(out / "results.jsonl").records() == []
+    assert {key: _starts(work, key) - before[key] for key in keys} == dict.fromkeys(keys[:2], 1) | dict.fromkeys(
+        keys[2:], 0
+    )

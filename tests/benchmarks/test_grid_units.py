@@ -200,3 +200,20 @@ def test_a_second_evaluation_of_the_final_checkpoint_keeps_its_own_files_and_the
     assert differing and all("final" in a and "online" in b and "final" not in b for a, b in differing)
     seed = [c for c in online_cmd if c.startswith("--seed=")]
     assert seed == [c for c in grid_cmd if c.startswith("--seed=")] and seed[0].endswith(str(200000 + 1000))
+
+
+def test_variant_eval_says_when_no_run_matches_and_writes_nothing(tmp_path, capsys):
+    """A filter that matches no finished run is a mistake to name, not an empty table to commit."""
+    from lerobot_focal.benchmarks.grid import variant_eval
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "grid.json").write_text(json.dumps({"preset": {"name": "cpu_plateau"}, "tasks": ["pick-place"],
+                                               "methods": ["focal"], "seeds": [0]}))
+    (out / "results.jsonl").write_text(json.dumps({"key": "pick-place|focal|0", "status": "ok", "task": "pick-place",
+                                                   "method": "focal", "seed": 0, "success_fresh": 0.4}) + "\n")
+    assert variant_eval.main(["--variant", "online", "--out", str(out), "--work", str(tmp_path / "w"),
+                              "--seeds", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "no finished run of --methods focal,focal_online with --seeds 2" in err and "ran methods focal" in err
+    assert not (out / "variant_online.md").exists() and not (out / "variant_online.json").exists()

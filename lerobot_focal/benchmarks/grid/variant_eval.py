@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
                if r["method"] in args.methods.split(",") and "success_fresh" in r
                and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
+    if not records and not done:
+        filters = " and ".join(f for f in (args.tasks and f"--tasks {args.tasks}", args.seeds and f"--seeds {args.seeds}") if f)
+        print(f"variant_eval: no finished run of --methods {args.methods}{' with ' + filters if filters else ''} in "
+              f"{args.out / 'results.jsonl'} (the grid ran methods {', '.join(grid['methods'])}); nothing to "
+              "evaluate, nothing written. Check the filters, or run the grid first.", file=sys.stderr)
+        return 2
     grid_args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
                             ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
                             "--seeds", ",".join(map(str, grid["seeds"]))])
