@@ -94,6 +94,9 @@ class FocalConfig(PreTrainedConfig):
         n_obs_steps: Observation steps in the condition (t−1, t), concatenated into the FiLM vector.
         chunk_size: H, the proximal chunk: supervised by L_time and executed before re-planning.
         n_chunks: N, chunks in the macro-trajectory; L = N·H steps are predicted (and regularised by L_freq).
+        n_action_steps: Actions executed per network evaluation. None → H, the paper's "execution window =
+            supervised window"; up to L executes into the foresight part of the macro-trajectory (fewer
+            re-plans, as LeRobot's diffusion executes 8 of 16), which only L_freq shapes.
         drop_n_last_frames: Frames at each episode's end that never start a training window; None → H − 1, so
             the supervised proximal chunk is always real data (the rest of L repeats the last action).
         normalization_mapping: LeRobot normalisation mode per feature type. A point cloud is a STATE feature
@@ -185,6 +188,7 @@ class FocalConfig(PreTrainedConfig):
     n_obs_steps: int = 2
     chunk_size: int = 4  # H: proximal chunk = executed chunk
     n_chunks: int = 3  # N: chunks in the macro-trajectory, L = N·H
+    n_action_steps: int | None = None  # None → H (executed chunk = supervised chunk)
     # Frames at the end of each episode that never start a training window. None → H − 1, so the supervised
     # proximal chunk is always real data; the foresight part past the episode end repeats the last action
     # (LeRobot's edge padding, the same as DP3's replicate padding).
@@ -321,6 +325,14 @@ class FocalConfig(PreTrainedConfig):
                 f"n_obs_steps, chunk_size and n_chunks must be ≥ 1 (got {self.n_obs_steps}, "
                 f"{self.chunk_size}, {self.n_chunks})."
             )
+        if self.n_action_steps is None:
+            self.n_action_steps = self.chunk_size
+        if not 1 <= self.n_action_steps <= self.horizon:
+            raise FocalConfigError(
+                f"n_action_steps={self.n_action_steps} must be between 1 and the macro horizon L = "
+                f"chunk_size·n_chunks = {self.horizon}: a chunk step executes actions of the trajectory it "
+                f"predicts. Fix: leave it unset (executes the proximal chunk, H = {self.chunk_size}) or lower it."
+            )
         factor = unet_downsampling_factor(self.down_dims)
         if self.horizon % factor != 0:
             ok = [h for h in range(factor, 4 * factor + 1, factor)]
@@ -432,11 +444,6 @@ class FocalConfig(PreTrainedConfig):
     def horizon(self) -> int:
         """L = N·H, the macro-trajectory length the network predicts."""
         return self.chunk_size * self.n_chunks
-
-    @property
-    def n_action_steps(self) -> int:
-        """Actions executed per network evaluation: the proximal chunk (execution window = supervised window)."""
-        return self.chunk_size
 
     def objective_spec(self) -> ObjectiveSpec:
         return ObjectiveSpec(

@@ -54,6 +54,24 @@ def test_executed_chunk_is_the_first_h_steps_of_the_macro_trajectory():
     torch.testing.assert_close(chunk, full[:, :4])
 
 
+def test_executing_into_the_foresight_part_replans_less_and_executes_the_macro_trajectory_in_order():
+    """n_action_steps > H (LeRobot's usual knob): 8 of L = 12 actions per evaluation, in the predicted order."""
+    policy = small_policy(n_action_steps=8).eval()
+    calls = []
+    policy.ema_model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+    noise, current = torch.randn(1, 12, 3), _obs(b=1)
+    obs = {k: v.unsqueeze(1).expand(-1, 2, *v.shape[1:]) for k, v in current.items()}
+    full = policy.sample_macro_trajectory(obs, noise=noise)
+    calls.clear()
+    policy.reset()
+    executed = [policy.select_action(current, noise=noise) for _ in range(16)]
+    assert len(calls) == 2  # steps 0 and 8
+    torch.testing.assert_close(torch.stack(executed[:8], dim=1), full[:, :8])
+    assert small_policy().config.n_action_steps == 4  # unset: the proximal chunk, as the paper
+    with pytest.raises(FocalConfigError, match="n_action_steps=13 must be between 1 and the macro horizon L"):
+        small_config(n_action_steps=13)
+
+
 def test_save_and_reload_give_identical_actions(tmp_path):
     policy = small_policy()
     opt = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)

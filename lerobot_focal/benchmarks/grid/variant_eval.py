@@ -12,7 +12,9 @@ pair by pair, with the grid's number (EMA weights, one network evaluation per ch
 * ``online``: the online weights instead of the EMA (``--policy.use_ema_for_inference=false``), to choose the
   default at the grid's budget;
 * ``nfe2`` / ``nfe4``: 2 or 4 Euler steps along the learned flow instead of one, to tell whether one-step
-  generation is what limits a task, or what the network learned.
+  generation is what limits a task, or what the network learned;
+* ``exec8``: 8 of the 12 predicted actions executed per chunk instead of the proximal 4 (half the re-plans),
+  to tell whether re-planning from fresh noise every 4 steps is what makes a policy dither.
 
 Writes ``variant_<name>.json`` and ``variant_<name>.md`` beside the grid's report; resumable (runs already
 compared are skipped).
@@ -42,6 +44,8 @@ VARIANTS: dict[str, Variant] = {
     "online": Variant("online weights", ("--policy.use_ema_for_inference=false",)),
     "nfe2": Variant("2 Euler steps", ("--policy.num_inference_steps=2",)),
     "nfe4": Variant("4 Euler steps", ("--policy.num_inference_steps=4",)),
+    # 8 of the 12 predicted actions per evaluation (half the re-plans), as LeRobot's diffusion executes 8 of 16.
+    "exec8": Variant("8 actions executed per chunk", ("--policy.n_action_steps=8",)),
 }
 GRID_LABEL = "grid (EMA, 1 step)"
 
@@ -106,9 +110,9 @@ def render(name: str, done: dict[str, dict]) -> str:
     md = [f"# The grid's final checkpoints with {variant.label} (fresh episodes)", "",
           f"`python -m lerobot_focal.benchmarks.grid.variant_eval --variant {name} --out <grid>`: each run's final "
           f"checkpoint on the same fresh episodes as the grid's number, with `{' '.join(variant.overrides)}`.", "",
-          f"| run | episodes | {GRID_LABEL} | {variant.label} |", "|---|---|---|---|"]
-    md += [f"| {k} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % | {done[k]['variant'] * 100:.0f} % |"
-           for k in keys]
+          f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} |", "|---|---|---|---|"]
+    md += [f"| {k.replace('|', ' · ')} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % "
+           f"| {done[k]['variant'] * 100:.0f} % |" for k in keys]
     d = paired_difference([done[k]["variant"] for k in keys], [done[k]["grid"] for k in keys])
     if d["n"]:
         ci = "" if d["lo"] != d["lo"] else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
