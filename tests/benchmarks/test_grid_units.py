@@ -217,3 +217,17 @@ def test_variant_eval_says_when_no_run_matches_and_writes_nothing(tmp_path, caps
     err = capsys.readouterr().err
     assert "no finished run of --methods focal,focal_online with --seeds 2" in err and "ran methods focal" in err
     assert not (out / "variant_online.md").exists() and not (out / "variant_online.json").exists()
+
+
+def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocations_not_at_all():
+    from lerobot_focal.benchmarks.grid.report import elapsed_s
+
+    records = [
+        {"started_at": "2026-01-01T10:00:00", "finished_at": "2026-01-01T10:20:00"},
+        {"started_at": "2026-01-01T10:05:00", "finished_at": "2026-01-01T10:15:00"},  # inside the first
+        {"started_at": "2026-01-01T10:10:00", "finished_at": "2026-01-01T10:30:00"},  # overlaps its end
+        # an older record without started_at: 10 min of training + 5 of final evaluation, after a 1 h gap
+        {"finished_at": "2026-01-01T11:45:00", "wall_s": 600.0, "final_eval_s": 300.0},
+    ]
+    assert elapsed_s(records) == 30 * 60 + 15 * 60
+    assert elapsed_s([]) == 0.0

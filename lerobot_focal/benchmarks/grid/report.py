@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -157,6 +158,31 @@ def summary_table(records: list[dict], grid: dict) -> dict:
     return out
 
 
+def elapsed_s(records: list[dict]) -> float:
+    """Seconds during which at least one run of the grid was going: the union of the runs' intervals, so runs
+    that overlapped (``--jobs`` > 1) count once and the gaps between grid invocations not at all. A record
+    without ``started_at`` (written before it was recorded) starts its training and final evaluation before it
+    finished."""
+    spans = []
+    for r in records:
+        if "finished_at" not in r:
+            continue
+        end = datetime.fromisoformat(r["finished_at"])
+        if "started_at" in r:
+            start = datetime.fromisoformat(r["started_at"])
+        else:
+            start = end - timedelta(seconds=r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0))
+        spans.append((start, end))
+    total, reach = 0.0, None
+    for start, end in sorted(spans):
+        if reach is not None and start < reach:
+            start = reach
+        if end > start:
+            total += (end - start).total_seconds()
+        reach = end if reach is None else max(reach, end)
+    return total
+
+
 def write_report(out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     grid = json.loads((out_dir / "grid.json").read_text())
@@ -173,8 +199,9 @@ def write_report(out_dir: Path) -> Path:
     md = [f"# Benchmark grid: preset `{preset['name']}`", "", preset["notes"], ""]
     todo = len(grid["tasks"]) * len(grid["methods"]) * len(grid["seeds"]) - len(records)
     hours = sum(r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0) for r in records) / 3600
-    md += [f"Wall time of the {len(records)} finished runs: {hours:.1f} h of training and evaluation, summed over "
-           "the runs (other work sharing the machine; with `--jobs` > 1 runs overlap, so the grid took less)"
+    md += [f"Wall time of the {len(records)} finished runs: {elapsed_s(records) / 3600:.1f} h during which the grid "
+           f"had runs going ({hours:.1f} h of training and evaluation summed over the runs, which overlap with "
+           "`--jobs` > 1; other work shared the machine)"
            + (f"; {todo} runs of the grid are still to do (rerun the grid command to continue)." if todo > 0 else ".")
            , ""]
     if grid.get("overrides"):

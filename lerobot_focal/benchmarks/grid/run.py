@@ -132,8 +132,9 @@ def run_one(spec: RunSpec) -> dict:
     if out.exists():
         shutil.rmtree(out)  # an interrupted earlier attempt: start it over (lerobot-train needs a new dir)
     out.mkdir(parents=True)
+    started_at = time.strftime("%Y-%m-%dT%H:%M:%S")
     with open(spec.work / "attempts.log", "a") as f:  # every start of every run, kept across retries
-        f.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S')} {spec.key} pid={os.getpid()}\n")
+        f.write(f"{started_at} {spec.key} pid={os.getpid()}\n")
     env = child_env(spec.preset)
     p = spec.preset
     collect_task_data(spec.data, p, None if spec.obs_type == p.obs_type else spec.obs_type, spec.work / "logs")
@@ -187,6 +188,7 @@ def run_one(spec: RunSpec) -> dict:
         "update_s_per_step": (sum(updates) / len(updates)) if updates else None,
         "wall_s": wall_s,
         "run_dir": str(out),
+        "started_at": started_at,
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
 
