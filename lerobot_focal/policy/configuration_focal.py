@@ -168,6 +168,9 @@ class FocalConfig(PreTrainedConfig):
         consistency_target: θ⁻ of the consistency target: "ema" (the paper) or "online" weights under stop-grad
             (the authors' code, and FlowPolicy's).
         num_inference_steps: Network evaluations per chunk (1, the method; > 1 integrates with Euler steps).
+        inference_noise_scale: Standard deviation of the starting noise M_0 at inference. 1 samples the
+            distribution the flow was trained from (the method); below 1 is a sampling temperature that trades
+            the diversity of chunks for their consistency from one re-plan to the next (0: deterministic).
         use_ema: Keep an EMA copy of the network (a frozen submodule saved with the checkpoint).
         ema_power: DP3's EMA warm-up: decay = 1 − (1 + step)^−power.
         ema_min_decay: Lower clip of the decay.
@@ -285,6 +288,7 @@ class FocalConfig(PreTrainedConfig):
     # θ⁻ of the consistency target: "ema" (the paper) or "online" weights under no_grad (the authors' code).
     consistency_target: str | None = None
     num_inference_steps: int = 1  # NFE per chunk; > 1 integrates with Euler steps
+    inference_noise_scale: float = 1.0  # std of the starting noise M_0 at inference (1: the flow's own prior)
 
     # --- EMA (DP3's schedule: decay = 1 − (1 + step)^−power, clipped) --------------------------------------
     use_ema: bool = True
@@ -348,6 +352,11 @@ class FocalConfig(PreTrainedConfig):
             raise FocalConfigError("consistency_target='ema' needs use_ema=true (or set consistency_target='online').")
         if self.num_inference_steps < 1:
             raise FocalConfigError(f"num_inference_steps must be ≥ 1, got {self.num_inference_steps}.")
+        if not 0.0 <= self.inference_noise_scale < float("inf"):
+            raise FocalConfigError(
+                f"inference_noise_scale must be a finite number ≥ 0, got {self.inference_noise_scale} (1 samples the "
+                "flow's own prior; 0 starts every chunk from M_0 = 0, one deterministic trajectory per observation)."
+            )
         if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0:
             raise FocalConfigError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
         if self.pointcloud_from_depth is not None:

@@ -302,13 +302,14 @@ class FocalPolicy(PreTrainedPolicy):
     def sample_macro_trajectory(
         self, obs: dict[str, Tensor], noise: Tensor | None = None, image_features: dict[str, Tensor] | None = None
     ) -> Tensor:
-        """Integrate the learned flow from noise (τ = ε) to data (τ = 1); NFE = num_inference_steps."""
+        """Integrate the learned flow from noise (τ = ε) to data (τ = 1); NFE = num_inference_steps. Noise
+        passed in is used as given; drawn noise is scaled by ``inference_noise_scale``."""
         net = self._inference_net()
         cond = net.encode(obs, image_features)
         b = cond.shape[0]
         shape = (b, self.config.horizon, self.config.action_feature.shape[0])
         if noise is None:
-            x = torch.randn(shape, device=cond.device, dtype=cond.dtype)
+            x = torch.randn(shape, device=cond.device, dtype=cond.dtype) * self.config.inference_noise_scale
         else:
             if tuple(noise.shape) != shape:
                 raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")

@@ -72,6 +72,19 @@ def test_executing_into_the_foresight_part_replans_less_and_executes_the_macro_t
         small_config(n_action_steps=13)
 
 
+def test_inference_noise_scale_is_a_sampling_temperature():
+    """Scale 0 starts every chunk from M_0 = 0: the same observation gives the same chunk; scale 1 does not."""
+    current = _obs(b=1)
+    cold, warm = small_policy(inference_noise_scale=0.0).eval(), small_policy().eval()
+    warm.load_state_dict(cold.state_dict())
+    torch.testing.assert_close(cold.predict_action_chunk(current), cold.predict_action_chunk(current))
+    torch.testing.assert_close(cold.predict_action_chunk(current),
+                               warm.predict_action_chunk(current, noise=torch.zeros(1, 12, 3)))
+    assert not torch.allclose(warm.predict_action_chunk(current), warm.predict_action_chunk(current))
+    with pytest.raises(FocalConfigError, match="inference_noise_scale must be a finite number"):
+        small_config(inference_noise_scale=-1.0)
+
+
 def test_save_and_reload_give_identical_actions(tmp_path):
     policy = small_policy()
     opt = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)

@@ -14,7 +14,9 @@ pair by pair, with the grid's number (EMA weights, one network evaluation per ch
 * ``nfe2`` / ``nfe4``: 2 or 4 Euler steps along the learned flow instead of one, to tell whether one-step
   generation is what limits a task, or what the network learned;
 * ``exec8``: 8 of the 12 predicted actions executed per chunk instead of the proximal 4 (half the re-plans),
-  to tell whether re-planning from fresh noise every 4 steps is what makes a policy dither.
+  to tell whether fewer re-plans help and how good the foresight part of the macro-trajectory is;
+* ``noise0``: every chunk started from M_0 = 0 instead of fresh noise, to tell whether switching between
+  sampled modes from one re-plan to the next is what makes a policy dither.
 
 Writes ``variant_<name>.json`` and ``variant_<name>.md`` beside the grid's report; resumable (runs already
 compared are skipped).
@@ -46,6 +48,8 @@ VARIANTS: dict[str, Variant] = {
     "nfe4": Variant("4 Euler steps", ("--policy.num_inference_steps=4",)),
     # 8 of the 12 predicted actions per evaluation (half the re-plans), as LeRobot's diffusion executes 8 of 16.
     "exec8": Variant("8 actions executed per chunk", ("--policy.n_action_steps=8",)),
+    # Every chunk from M_0 = 0: one deterministic trajectory per observation instead of a fresh sample per re-plan.
+    "noise0": Variant("starting noise 0", ("--policy.inference_noise_scale=0",)),
 }
 GRID_LABEL = "grid (EMA, 1 step)"
 
@@ -73,7 +77,8 @@ def main(argv: list[str] | None = None) -> int:
                if r["method"] in args.methods.split(",") and "success_fresh" in r
                and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
     if not records and not done:
-        filters = " and ".join(f for f in (args.tasks and f"--tasks {args.tasks}", args.seeds and f"--seeds {args.seeds}") if f)
+        given = (args.tasks and f"--tasks {args.tasks}", args.seeds and f"--seeds {args.seeds}")
+        filters = " and ".join(f for f in given if f)
         print(f"variant_eval: no finished run of --methods {args.methods}{' with ' + filters if filters else ''} in "
               f"{args.out / 'results.jsonl'} (the grid ran methods {', '.join(grid['methods'])}); nothing to "
               "evaluate, nothing written. Check the filters, or run the grid first.", file=sys.stderr)
@@ -85,17 +90,22 @@ def main(argv: list[str] | None = None) -> int:
         setattr(grid_args, key, tuple(value) if isinstance(value, list) else value)
     specs = {s.key: s for s in build_specs(grid_args)[0]}
     for r in records:
-        if r["key"] in done or r["key"] not in specs:
+        if r["key"] not in specs or ("atv_variant" in done.get(r["key"], {})):
             continue
         spec = specs[r["key"]]
-        run_dir = spec.run_dir
-        checkpoint = run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
-        cmd = [*final_eval_command(spec, checkpoint, name=args.variant), *variant.overrides]
-        run_logged(cmd, run_dir / f"{args.variant}_eval.log", child_env(spec.preset), f"lerobot-eval ({variant.label})")
-        eps = [json.loads(x) for x in (run_dir / f"{args.variant}_episodes.jsonl").read_text().splitlines() if x]
+        episodes_file = spec.run_dir / f"{args.variant}_episodes.jsonl"
+        if r["key"] not in done:
+            checkpoint = spec.run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
+            cmd = [*final_eval_command(spec, checkpoint, name=args.variant), *variant.overrides]
+            run_logged(cmd, spec.run_dir / f"{args.variant}_eval.log", child_env(spec.preset),
+                       f"lerobot-eval ({variant.label})")
+        elif not episodes_file.exists():
+            continue  # compared by an earlier version that kept no ATV, and its episodes are gone
+        eps = [json.loads(x) for x in episodes_file.read_text().splitlines() if x]
         eps = [e for e in eps if e.get("seed") is not None]
         done[r["key"]] = {"grid": r["success_fresh"], "variant": sum(e["success"] for e in eps) / len(eps),
-                          "episodes": len(eps)}
+                          "episodes": len(eps), "atv_grid": r.get("atv_fresh"),
+                          "atv_variant": sum(e["action_total_variation"] for e in eps) / len(eps)}
         done_path.write_text(json.dumps(done, indent=1))
         print(f"{r['key']}: {GRID_LABEL} {done[r['key']]['grid']:.2f}, {variant.label} "
               f"{done[r['key']]['variant']:.2f}", flush=True)
@@ -110,15 +120,28 @@ def render(name: str, done: dict[str, dict]) -> str:
     md = [f"# The grid's final checkpoints with {variant.label} (fresh episodes)", "",
           f"`python -m lerobot_focal.benchmarks.grid.variant_eval --variant {name} --out <grid>`: each run's final "
           f"checkpoint on the same fresh episodes as the grid's number, with `{' '.join(variant.overrides)}`.", "",
-          f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} |", "|---|---|---|---|"]
+          f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} | ATV, grid | ATV, variant |",
+          "|---|---|---|---|---|---|"]
     md += [f"| {k.replace('|', ' · ')} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % "
-           f"| {done[k]['variant'] * 100:.0f} % |" for k in keys]
+           f"| {done[k]['variant'] * 100:.0f} % | {_atv(done[k].get('atv_grid'))} | {_atv(done[k].get('atv_variant'))} |"
+           for k in keys]
     d = paired_difference([done[k]["variant"] for k in keys], [done[k]["grid"] for k in keys])
     if d["n"]:
         ci = "" if d["lo"] != d["lo"] else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
         md += ["", f"{variant.label} − grid: {d['mean'] * 100:+.1f} points over {d['n']} runs{ci} "
                f"(better / equal / worse: {d['wins']} / {d['ties']} / {d['losses']})."]
+    atv = [k for k in keys if done[k].get("atv_grid") is not None and done[k].get("atv_variant") is not None]
+    if atv:
+        d = paired_difference([done[k]["atv_variant"] for k in atv], [done[k]["atv_grid"] for k in atv])
+        md += ["", f"ATV (mean change of consecutive executed actions, fresh episodes), {variant.label} − grid: "
+               f"{d['mean']:+.4f} over {d['n']} runs"
+               + ("" if d["lo"] != d["lo"] else f", 95 % interval [{d['lo']:+.4f}, {d['hi']:+.4f}]")
+               + f" (lower / equal / higher: {d['losses']} / {d['ties']} / {d['wins']})."]
     return "\n".join(md) + "\n"
+
+
+def _atv(x: float | None) -> str:
+    return "–" if x is None else f"{x:.3f}"
 
 
 if __name__ == "__main__":
