@@ -231,3 +231,18 @@ def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocation
     ]
     assert elapsed_s(records) == 30 * 60 + 15 * 60
     assert elapsed_s([]) == 0.0
+
+
+def test_variant_table_pairs_success_and_atv_and_keeps_run_keys_out_of_the_column_separators():
+    from lerobot_focal.benchmarks.grid.variant_eval import render
+
+    done = {"basketball|focal|0": {"grid": 0.42, "variant": 0.30, "episodes": 50, "atv_grid": 0.20, "atv_variant": 0.10},
+            "pick-place|focal|0": {"grid": 0.40, "variant": 0.40, "episodes": 50, "atv_grid": 0.10, "atv_variant": 0.08},
+            "push-wall|focal|1": {"grid": 0.70, "variant": 0.60, "episodes": 50}}  # compared before ATV was kept
+    md = render("noise0", done)
+    rows = [line for line in md.splitlines() if line.startswith("| basketball") or line.startswith("| push-wall")]
+    assert all(line.count("|") == 7 for line in rows), rows  # 6 columns: the key's '|' do not split cells
+    assert "| basketball · focal · 0 | 50 | 42 % | 30 % | 0.200 | 0.100 |" in md
+    assert "| push-wall · focal · 1 | 50 | 70 % | 60 % | – | – |" in md
+    assert "starting noise 0 − grid: -7.3 points over 3 runs" in md
+    assert "− grid: -0.0600 over 2 runs, 95 % interval" in md and "(lower / equal / higher: 2 / 0 / 0)" in md
