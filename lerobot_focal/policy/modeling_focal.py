@@ -309,7 +309,9 @@ class FocalPolicy(PreTrainedPolicy):
         b = cond.shape[0]
         shape = (b, self.config.horizon, self.config.action_feature.shape[0])
         if noise is None:
-            x = torch.randn(shape, device=cond.device, dtype=cond.dtype) * self.config.inference_noise_scale
+            x = torch.randn(shape, device=cond.device, dtype=cond.dtype)
+            if self.config.inference_noise_scale != 1.0:
+                x = x * self.config.inference_noise_scale
         else:
             if tuple(noise.shape) != shape:
                 raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")

@@ -34,10 +34,15 @@ def stop_all() -> None:
     for proc in list(_RUNNING):
         proc.terminate()
     for proc in list(_RUNNING):
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        _reap(proc)
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    """Wait for a terminated child; kill it if it has not ended within 20 s."""
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
 
 
 def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str) -> None:
@@ -52,10 +57,7 @@ def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str) -> Non
             rc = proc.wait()
         except BaseException:  # Ctrl-C in a single-job driver lands here: the child is in its own session
             proc.terminate()
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            _reap(proc)
             raise
         finally:
             _RUNNING.discard(proc)

@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         setattr(grid_args, key, tuple(value) if isinstance(value, list) else value)
     specs = {s.key: s for s in build_specs(grid_args)[0]}
     for r in records:
-        if r["key"] not in specs or ("atv_variant" in done.get(r["key"], {})):
+        if r["key"] not in specs or "atv_variant" in done.get(r["key"], {}):
             continue
         spec = specs[r["key"]]
         episodes_file = spec.run_dir / f"{args.variant}_episodes.jsonl"
