@@ -3,7 +3,7 @@
 Real policies, real LeRobot code, no mocks:
   * FCO off → the loss is LeRobot's ``DiffusionPolicy`` loss bit for bit (same weights, same seed);
   * FCO on → the extra term equals FCO recomputed here from scratch (noise/timestep draws, ᾱ_t from the
-    scheduler's betas, x̂0 by hand, scipy's orthonormal DCT) for ε- and sample-prediction;
+    scheduler's betas, x̂0 by hand, min-SNR-γ weights, scipy's orthonormal DCT) for ε- and sample-prediction;
   * gradients of the FCO term reach the network;
   * ``lerobot-train --policy.type=diffusion_fco`` runs as a subprocess on a tiny on-disk dataset and its
     checkpoint reloads through ``make_policy`` / ``from_pretrained`` / saved processors and acts.
@@ -120,19 +120,25 @@ def _expected_fco(policy: DiffusionFcoPolicy, batch, seed: int = 123) -> tuple[f
         x0_hat = out
     x0_hat = x0_hat.clamp(-cfg.clip_sample_range, cfg.clip_sample_range).numpy()
     err = x0_hat - x0.double().numpy()
+    # Min-SNR-γ weights (ε-prediction): min(ᾱ/(1−ᾱ), γ) per sample; sample prediction is unweighted.
+    snr = (alpha_bar / (1 - alpha_bar)).flatten().numpy()
+    weighted = cfg.prediction_type == "epsilon" and cfg.fco_weighting == "min_snr"
+    w = np.minimum(snr, cfg.fco_min_snr_gamma) if weighted else np.ones_like(snr)
     s = N_OBS - 1
-    l_time = float((err[:, s : s + N_ACT] ** 2).mean(axis=(1, 2)).mean())
+    l_time = float((w * (err[:, s : s + N_ACT] ** 2).mean(axis=(1, 2))).mean())
     coeffs = scipy.fft.dct(err, type=2, norm="ortho", axis=1)  # orthonormal DCT-II over the whole horizon
-    l_freq = float((coeffs**2).sum(axis=(1, 2)).mean())
-    assert l_freq == pytest.approx(float((err**2).sum(axis=(1, 2)).mean()), rel=1e-9)  # Parseval
+    l_freq = float((w * (coeffs**2).sum(axis=(1, 2))).mean())
+    assert l_freq == pytest.approx(float((w * (err**2).sum(axis=(1, 2))).mean()), rel=1e-9)  # Parseval
     return l_time, l_freq
 
 
-@pytest.mark.parametrize("prediction_type", ["epsilon", "sample"])
-def test_fco_term_is_fco_on_x0_estimate(prediction_type):
+@pytest.mark.parametrize(
+    ("prediction_type", "weighting"), [("epsilon", "min_snr"), ("epsilon", "none"), ("sample", "min_snr")]
+)
+def test_fco_term_is_fco_on_x0_estimate(prediction_type, weighting):
     torch.manual_seed(1)
     lam = 1e-2  # larger than the paper's 1e-4 so that the frequency term is well above float noise
-    policy = DiffusionFcoPolicy(_config(prediction_type=prediction_type, fco_lambda=lam))
+    policy = DiffusionFcoPolicy(_config(prediction_type=prediction_type, fco_lambda=lam, fco_weighting=weighting))
     batch = _batch(seed=2)
     on, logs = _loss(policy, batch)
     policy.config.use_fco = False
@@ -148,6 +154,23 @@ def test_fco_term_is_fco_on_x0_estimate(prediction_type):
     policy.config.use_fco, policy.config.fco_keep_diffusion_loss = True, False
     alone, _ = _loss(policy, batch)
     assert alone.item() == pytest.approx(l_time + lam * l_freq, rel=1e-4)
+
+
+def test_min_snr_weighting_keeps_fco_within_the_epsilon_loss_scale():
+    """Unweighted, FCO's gradient on ε̂ is the ε-loss's times 1/SNR_t (millions at the noisiest step); with
+    min(SNR_t, γ) its per-element weight in ε units is min(1, γ/SNR_t) ≤ 1 at every step of the schedule."""
+    policy = DiffusionFcoPolicy(_config())
+    t = torch.arange(policy.config.num_train_timesteps)
+    alpha_bar = policy.diffusion.noise_scheduler.alphas_cumprod.float()
+    snr = alpha_bar / (1 - alpha_bar)
+    w = policy.fco_sample_weights(t)
+    assert w is not None and torch.allclose(w, snr.clamp(max=5.0))
+    assert (w / snr).max() <= 1.0 + 1e-6  # x̂0 weight → ε weight: divide by SNR
+    assert (1 / snr).max() > 1e6  # what the weighting prevents: the unweighted x̂0 loss's worst ε weight
+    policy.config.fco_weighting = "none"
+    assert policy.fco_sample_weights(t) is None
+    policy.config.fco_weighting, policy.config.prediction_type = "min_snr", "sample"
+    assert policy.fco_sample_weights(t) is None
 
 
 def test_gradient_of_fco_reaches_the_network():
@@ -170,6 +193,11 @@ def test_config_validation_and_factory_resolution():
         _config(fco_time_window="proximal")
     with pytest.raises(ValueError, match="executed window"):
         _config(n_action_steps=16)
+    with pytest.raises(ValueError, match="fco_weighting"):
+        _config(fco_weighting="snr")
+    for gamma in (0.0, float("nan")):
+        with pytest.raises(ValueError, match="fco_min_snr_gamma"):
+            _config(fco_min_snr_gamma=gamma)
     assert "diffusion_fco" in PreTrainedConfig.get_known_choices()
     assert get_policy_class("diffusion_fco") is DiffusionFcoPolicy
     cfg = _config()

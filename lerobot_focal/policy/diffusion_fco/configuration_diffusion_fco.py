@@ -13,6 +13,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
 FCO_WINDOWS = ("executed", "horizon")
+FCO_WEIGHTINGS = ("min_snr", "none")
 
 
 @PreTrainedConfig.register_subclass("diffusion_fco")
@@ -34,6 +35,14 @@ class DiffusionFcoConfig(DiffusionConfig):
             "time-domain loss on the execution chunk, frequency-domain loss on the predicted trajectory".
         fco_clip_x0: clamp x̂0 to ±``clip_sample_range`` (when ``clip_sample`` is on) before FCO, exactly as the
             DDPM/DDIM ``step()`` clamps its ``pred_original_sample`` at inference.
+        fco_weighting: per-sample weight of the FCO term at diffusion step t, with ε-prediction only.
+            ``"min_snr"`` (default): min(SNR_t, γ), SNR_t = ᾱ_t / (1 − ᾱ_t), the Min-SNR-γ weighting of an x̂0
+            loss (Hang et al., 2023). An x̂0 error is the ε error over √SNR_t, so unweighted, the FCO gradient
+            outgrows the ε-loss's by 1/SNR_t (4·10⁶ at the last step of the default 100-step schedule); with
+            min(SNR_t, γ) it stays within the ε-loss's scale at every t. ``"none"``: unweighted, as this
+            policy trained before the option existed. With ``prediction_type="sample"`` x̂0 is the network
+            output and the diffusion loss itself is an unweighted x̂0 loss, so FCO stays unweighted there.
+        fco_min_snr_gamma: γ of ``"min_snr"`` (Hang et al.'s default: 5).
     """
 
     use_fco: bool = True
@@ -43,6 +52,8 @@ class DiffusionFcoConfig(DiffusionConfig):
     fco_freq_window: str = "horizon"
     fco_keep_diffusion_loss: bool = True
     fco_clip_x0: bool = True
+    fco_weighting: str = "min_snr"
+    fco_min_snr_gamma: float = 5.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -50,8 +61,12 @@ class DiffusionFcoConfig(DiffusionConfig):
             value = getattr(self, name)
             if value not in FCO_WINDOWS:
                 raise ValueError(f"`{name}` must be one of {list(FCO_WINDOWS)}. Got {value!r}.")
+        if self.fco_weighting not in FCO_WEIGHTINGS:
+            raise ValueError(f"`fco_weighting` must be one of {list(FCO_WEIGHTINGS)}. Got {self.fco_weighting!r}.")
         if self.fco_lambda < 0 or self.fco_time_weight < 0:
             raise ValueError("`fco_lambda` and `fco_time_weight` must be ≥ 0.")
+        if not self.fco_min_snr_gamma > 0:  # also catches NaN
+            raise ValueError(f"`fco_min_snr_gamma` must be > 0. Got {self.fco_min_snr_gamma}.")
         if self.n_action_steps < 1 or self.n_obs_steps - 1 + self.n_action_steps > self.horizon:
             raise ValueError(
                 "The executed window [n_obs_steps-1, n_obs_steps-1+n_action_steps) must lie inside the horizon. "

@@ -27,6 +27,7 @@ scheduler's own ᾱ_t = ``noise_scheduler.alphas_cumprod[t]``, exactly as DDPM/D
     epsilon prediction:  x̂0 = (x_t − √(1−ᾱ_t)·ε̂) / √ᾱ_t          sample prediction:  x̂0 = x̂
 
 and, when ``clip_sample`` and ``fco_clip_x0`` are on, clamped to ±``clip_sample_range`` as ``step()`` does.
+With ε-prediction each sample's FCO is weighted by min(SNR_t, γ) (``fco_weighting="min_snr"``, see below).
 
 Choices where the paper is silent or ambiguous (each is a config field):
   * Target of L_time. In FocalPolicy L_time is a consistency loss against a target network; a diffusion policy
@@ -40,6 +41,13 @@ Choices where the paper is silent or ambiguous (each is a config field):
   * Clamping x̂0 (``fco_clip_x0=True``). With ε-prediction x̂0 amplifies the ε error by √((1−ᾱ_t)/ᾱ_t), about
     2·10³ at the last step of the default ``squaredcos_cap_v2`` schedule; the clamp is what inference applies to
     the same quantity and keeps the FCO term bounded (elements outside the range get no FCO gradient).
+  * Weighting (``fco_weighting``, ε-prediction only). x̂0 − a = (ε − ε̂)/√SNR_t, so an unweighted FCO term is
+    an ε-loss reweighted by 1/SNR_t: 50 at t = 90 and 4·10⁶ at t = 99 of the default 100-step schedule. The
+    noisiest steps then dominate the gradient and crowd out the denoising objective FCO is added to
+    (docs/benchmarks.md shows it on the plateau grid: a higher ε-loss and lower success than plain DP).
+    Min-SNR-γ weighting (Hang et al., 2023), min(SNR_t, γ), is the standard cure for x̂0 losses: it caps each
+    step's weight at the ε-loss's, so FCO adds its window and frequency emphasis without outweighing the
+    denoising. ``"none"`` keeps the unweighted term.
   * Padding. With ``do_mask_loss_for_padding`` the copy-padded steps (``action_is_pad``) get zero FCO error
     (x̂0 is replaced by the target there); without it, as LeRobot's loss, they are supervised like the rest.
   * Defaults otherwise are ``DiffusionConfig``'s, so "DP" and "DP w. FCO" differ only in the loss; set the
@@ -70,13 +78,17 @@ class DiffusionFcoPolicy(DiffusionPolicy):
         self._time_spec = ObjectiveSpec(time_window="macro", time_weight=config.fco_time_weight, regularizer="none")
         self._freq_spec = ObjectiveSpec(time_weight=0.0, regularizer="freq", freq_window="macro", freq_weight=config.fco_lambda)
 
+    def _alpha_bar(self, timesteps: Tensor) -> Tensor:
+        """ᾱ_t of the training scheduler for each sample, shape (B,), float32."""
+        alphas_cumprod = self.diffusion.noise_scheduler.alphas_cumprod.to(device=timesteps.device, dtype=torch.float32)
+        return alphas_cumprod[timesteps.long()]
+
     def estimate_clean_sample(self, model_output: Tensor, noisy: Tensor, timesteps: Tensor) -> Tensor:
         """x̂0 from the U-Net output at (x_t, t), as the scheduler's ``step()`` computes ``pred_original_sample``."""
         cfg = self.config
         model_output = model_output.float()
         if cfg.prediction_type == "epsilon":
-            alpha_bar = self.diffusion.noise_scheduler.alphas_cumprod.to(device=noisy.device, dtype=torch.float32)
-            alpha_bar = alpha_bar[timesteps.long()].view(-1, *([1] * (noisy.ndim - 1)))
+            alpha_bar = self._alpha_bar(timesteps).view(-1, *([1] * (noisy.ndim - 1)))
             x0 = (noisy.float() - (1.0 - alpha_bar).sqrt() * model_output) / alpha_bar.sqrt()
         elif cfg.prediction_type == "sample":
             x0 = model_output
@@ -86,12 +98,28 @@ class DiffusionFcoPolicy(DiffusionPolicy):
             x0 = x0.clamp(-cfg.clip_sample_range, cfg.clip_sample_range)
         return x0
 
-    def fco_loss(self, x0: Tensor, actions: Tensor, action_is_pad: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
-        """L_FCO = w_time·L_time(executed window) + λ·L_freq(horizon) of x̂0 against the expert actions."""
+    def fco_sample_weights(self, timesteps: Tensor) -> Tensor | None:
+        """min(SNR_t, γ) per sample with ε-prediction and ``fco_weighting="min_snr"``; None means unweighted."""
+        cfg = self.config
+        if cfg.prediction_type != "epsilon" or cfg.fco_weighting == "none":
+            return None
+        alpha_bar = self._alpha_bar(timesteps)
+        return (alpha_bar / (1.0 - alpha_bar)).clamp(max=cfg.fco_min_snr_gamma)
+
+    def fco_loss(
+        self, x0: Tensor, actions: Tensor, action_is_pad: Tensor | None = None, weights: Tensor | None = None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """L_FCO = w_time·L_time(executed window) + λ·L_freq(horizon) of x̂0 against the expert actions.
+
+        ``weights`` (B,) scale each sample's FCO. Both terms are quadratic in the error x̂0 − a (the DCT is
+        linear), so scaling the error by √w scales each sample's L_time and L_freq by exactly w.
+        """
         cfg = self.config
         actions = actions.float()
         if cfg.do_mask_loss_for_padding and action_is_pad is not None:
             x0 = torch.where(action_is_pad.unsqueeze(-1), actions, x0)
+        if weights is not None:
+            x0 = actions + weights.sqrt().view(-1, *([1] * (x0.ndim - 1))) * (x0 - actions)
         total = x0.new_zeros(())
         logs: dict[str, Tensor] = {}
         if cfg.fco_time_weight != 0:
@@ -126,7 +154,8 @@ class DiffusionFcoPolicy(DiffusionPolicy):
         noisy, timesteps, model_output = captured[0]
 
         x0 = self.estimate_clean_sample(model_output, noisy, timesteps)
-        l_fco, logs = self.fco_loss(x0, batch[ACTION], batch.get("action_is_pad"))
+        weights = self.fco_sample_weights(timesteps)
+        l_fco, logs = self.fco_loss(x0, batch[ACTION], batch.get("action_is_pad"), weights)
         loss = loss_dp + l_fco if self.config.fco_keep_diffusion_loss else l_fco
         out = {"loss_diffusion": loss_dp.item(), "loss_fco": l_fco.item()}
         out.update({k: v.item() for k, v in logs.items()})
