@@ -145,10 +145,10 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     from lerobot_focal.benchmarks.grid.report import write_report
 
     grid = {"preset": {**PRESETS["cpu_plateau"].to_dict()}, "overrides": {}, "tasks": ["pick-place", "push-wall"],
-            "methods": ["focal", "diffusion"], "seeds": [0, 1]}
+            "methods": ["focal", "diffusion", "diffusion_fco"], "seeds": [0, 1]}
     (tmp_path / "grid.json").write_text(json.dumps(grid))
     results = ResultsFile(tmp_path / "results.jsonl")
-    for method, base in (("focal", 0.6), ("diffusion", 0.4)):
+    for method, base in (("focal", 0.6), ("diffusion", 0.4), ("diffusion_fco", 0.45)):
         for task in grid["tasks"]:
             for seed in (0, 1):
                 curve = [{"step": 500 * (i + 1), "success": base + 0.01 * i, "atv": 0.1, "length": 100}
@@ -165,6 +165,10 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert entry["final_mean"] == pytest.approx(0.5) and entry["n_evals"] == 16 and entry["episodes_per_eval"] == 20
     assert entry["seeds"] == [0, 1] and entry["steps"] == 8000
     assert "+20.0 [+20.0, +20.0] (n=4; 4/0/0)" in report  # focal − diffusion, paired over 4 task-seed pairs
+    # One module at a time: DP w. FCO − DP, paired the same way; contrasts whose methods did not run are left out.
+    module = report[report.index("## Paired comparisons: what one module adds"):report.index("## Goals")]
+    assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
+    assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
 
 

@@ -71,25 +71,47 @@ def _pairs(records: list[dict], a: str, b: str, key: str, tasks: list[str]) -> t
     return [by[(a, t, s)] for t, s in common], [by[(b, t, s)] for t, s in common]
 
 
+#: Paired contrasts that isolate one module each, shown when the grid has both methods: (a, b, what a − b says).
+MODULE_CONTRASTS: tuple[tuple[str, str, str], ...] = (
+    ("diffusion_fco", "diffusion", "FCO added to diffusion (the paper's Table 2 question)"),
+    ("wo_las", "wo_fco_las", "FCO instead of FlowPolicy's objective, both without LAS"),
+)
+
+
+def _paired_cells(records: list[dict], tasks: list[str], a: str, b: str, keys: list[tuple]) -> list[str] | None:
+    """One table row's cells: a − b per key, with its interval and a's wins / ties / losses; None if no pair."""
+    cells = []
+    for key, _ in keys:
+        d = paired_difference(*_pairs(records, a, b, key, tasks))
+        if d["n"] == 0:
+            return None
+        ci = "" if math.isnan(d["lo"]) else f" [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
+        cells.append(f"{d['mean'] * 100:+.1f}{ci} (n={d['n']}; {d['wins']}/{d['ties']}/{d['losses']})")
+    return cells
+
+
 def _paired_table(records: list[dict], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]) -> list[str]:
     if "focal" not in methods:
         return []
+    header = "| " + " | ".join(name for _, name in keys) + " |"
+    rule = "|---|" + "---|" * len(keys)
     rows = ["## Paired comparisons: focal − method", "",
             "Differences in success points over the (task, seed) pairs both methods have (same demos, same "
             "evaluation episodes), mean with a 95 % Student-t interval, and focal's wins / ties / losses.", "",
-            "| Method | " + " | ".join(name for _, name in keys) + " |", "|---|" + "---|" * len(keys)]
+            "| Method " + header, rule]
     for m in methods:
-        if m == "focal":
-            continue
-        cells = []
-        for key, _ in keys:
-            d = paired_difference(*_pairs(records, "focal", m, key, tasks))
-            if d["n"] == 0:
-                cells.append("–")
-                continue
-            ci = "" if math.isnan(d["lo"]) else f" [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
-            cells.append(f"{d['mean'] * 100:+.1f}{ci} (n={d['n']}; {d['wins']}/{d['ties']}/{d['losses']})")
-        rows.append(f"| {label[m]} | " + " | ".join(cells) + " |")
+        cells = None if m == "focal" else _paired_cells(records, tasks, "focal", m, keys)
+        rows += [f"| {label[m]} | " + " | ".join(cells) + " |"] if cells else []
+    contrasts = [(a, b, what) for a, b, what in MODULE_CONTRASTS if a in methods and b in methods]
+    module_rows = []
+    for a, b, what in contrasts:
+        cells = _paired_cells(records, tasks, a, b, keys)
+        if cells:
+            module_rows.append(f"| {label[a]} − {label[b]}: {what} | " + " | ".join(cells) + " |")
+    if module_rows:
+        rows += ["", "## Paired comparisons: what one module adds", "",
+                 "The same paired differences between two methods that differ in one module only (wins / ties / "
+                 "losses are the first method's).", "", "| Contrast " + header, rule, *module_rows]
     return rows + [""]
 
 
