@@ -104,6 +104,8 @@ class FocalMetaworldEnv(MetaworldEnv):
         self.render_videos = render_videos
         self._viewer_ready = False
         self.last_raw_obs: np.ndarray | None = None  # MetaWorld's 39-d observation, what its experts read
+        #: MetaWorld's own ``grasp_success`` at the last step (False after reset): the object is held.
+        self.object_grasped = False
 
         obs_spaces: dict[str, spaces.Space] = {}
         if uses_state(obs_type):
@@ -197,6 +199,7 @@ class FocalMetaworldEnv(MetaworldEnv):
     def reset(self, seed: int | None = None, **kwargs) -> tuple[dict[str, Any], dict[str, Any]]:
         observation, info = super().reset(seed=seed, **kwargs)
         self.metrics.start(seed)
+        self.object_grasped = False
         return observation, info
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
@@ -212,6 +215,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         self.metrics.step(action)
         raw_obs, reward, done, truncated, info = self._env.step(action)
         is_success = bool(info.get("success", 0))
+        self.object_grasped = bool(info.get("grasp_success", 0))
         terminated = bool(done) or is_success
         truncated = bool(truncated)
         info = {**info, "task": self.task, "done": bool(done), "is_success": is_success}

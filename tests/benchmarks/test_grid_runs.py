@@ -53,6 +53,29 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     starts = (work / "attempts.log").read_text().splitlines()
     assert sum("reach|focal|0" in line for line in starts) == 1
 
+    # The finished run's checkpoint, rolled out by LeRobot's rollout with the scripted expert asked at every state.
+    from lerobot_focal.benchmarks.grid import expert_gap
+
+    run_dir = next((work / "runs").rglob("reach/focal/seed0"))
+    grid_episodes = (run_dir / "eval_episodes.jsonl").read_text()
+    assert expert_gap.main(["--out", str(out), "--work", str(work), "--episodes", "2"]) == 0
+    gap = json.loads((out / "expert_gap.json").read_text())["reach|focal|0"]
+    assert gap["episodes"] == 2 and 0 <= gap["successes"] <= 2
+    rows = gap["windows"]["success"] + gap["windows"]["failure"]
+    assert rows and all(len(r["gap"]) == 4 and all(0.0 <= g <= 2.0 for g in r["gap"]) for r in rows)
+    assert sum(r["episodes"] for r in rows if r["start"] == 0) == 2  # every episode has a first window
+    own = [json.loads(line) for line in (run_dir / "expert_gap_episodes.jsonl").read_text().splitlines()]
+    assert sorted(e["seed"] for e in own) == [expert_gap.EXPERT_GAP_SEED, expert_gap.EXPERT_GAP_SEED + 1]
+    assert (run_dir / "eval_episodes.jsonl").read_text() == grid_episodes  # the run's own files are untouched
+    split = gap["placement"]  # each start against the demos' range of observation.environment_state
+    assert split["inside"][1] + split["outside"][1] == 2 and split["inside"][0] + split["outside"][0] == gap["successes"]
+    md = (out / "expert_gap.md").read_text()
+    assert (out / "expert_gap.png").stat().st_size > 5000 and "reach · focal · 0" in md and "| reach | " in md
+    capsys.readouterr()
+    assert expert_gap.main(["--out", str(out), "--work", str(work), "--episodes", "2"]) == 0
+    assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped, no progress line
+    assert expert_gap.main(["--out", str(out), "--work", str(work), "--methods", "diffusion"]) == 2
+
 
 def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     pytest.importorskip("ray")

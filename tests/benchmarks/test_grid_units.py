@@ -172,9 +172,38 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
 
 
+def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end():
+    from lerobot_focal.benchmarks.grid.expert_gap import summarise
+
+    gap = np.zeros((3, 60, 4))
+    gap[0, :30], gap[0, 30:] = 0.1, 9.0  # a success that ended at step 29: what follows is not its episode
+    gap[1, :25], gap[1, 25:] = 0.5, 1.0
+    gap[2] = 2.0
+    out = summarise(gap, last=np.array([29, 59, 59]), success=np.array([True, False, False]),
+                    ever_grasped=np.array([True, False, True]))
+    assert (out["episodes"], out["successes"], out["failures_never_grasped"], out["successes_never_grasped"]) == (3, 1, 1, 0)
+    assert [(r["start"], r["episodes"], r["gap"][0]) for r in out["windows"]["success"]] == [(0, 1, 0.1), (25, 1, 0.1)]
+    assert [(r["start"], r["episodes"], r["gap"][3]) for r in out["windows"]["failure"]] == [
+        (0, 2, 1.25), (25, 2, 1.5), (50, 2, 1.5)]
+
+
+def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
+    from lerobot_focal.benchmarks.grid.expert_gap import placement_split
+
+    low, high = np.zeros(39), np.zeros(39)
+    high[4:7], high[36:39] = 1.0, 1.0  # object and goal varied in the demos; the second object (11:14) did not
+    start = np.full((4, 39), 0.5)
+    start[1, 5] = 1.2  # object y beyond the demos
+    start[2, 37] = -0.1  # goal y below them
+    start[3, 12] = 7.0  # a coordinate the demos never varied: not a placement
+    split = placement_split(start, low, high, success=np.array([True, False, True, True]))
+    assert split == {"inside": [2, 2], "outside": [1, 2]}
+
+
 def test_demo_heldout_and_evaluation_seeds_never_overlap():
     """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
     from lerobot_focal.benchmarks.grid.datasets import DEMO_SEED, HELDOUT_SEED
+    from lerobot_focal.benchmarks.grid.expert_gap import EXPERT_GAP_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
 
     for preset in PRESETS.values():
@@ -182,7 +211,8 @@ def test_demo_heldout_and_evaluation_seeds_never_overlap():
         demos = set(range(DEMO_SEED, DEMO_SEED + 3 * preset.demos))  # collection tries up to 3x the demos
         heldout = set(range(HELDOUT_SEED, HELDOUT_SEED + 3 * preset.heldout_demos))
         final = {FINAL_EVAL_SEED + 1000 * s + i for s in preset.seeds for i in range(preset.final_episodes)}
-        sets = [periodic, demos, heldout, final]
+        gap = {EXPERT_GAP_SEED + 1000 * s + i for s in preset.seeds for i in range(100)}  # expert_gap's episodes
+        sets = [periodic, demos, heldout, final, gap]
         assert all(not (a & b) for i, a in enumerate(sets) for b in sets[i + 1:]), preset.name
 
 

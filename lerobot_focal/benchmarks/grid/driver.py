@@ -93,6 +93,20 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
                    "seeds": seeds}
 
 
+def specs_of_grid(out: Path, work: Path) -> dict[str, RunSpec]:
+    """The runs of the grid whose ``grid.json`` is in ``out``, by run key, rebuilt as its invocation built them
+    (preset, overrides, tasks, methods, seeds): what tools that revisit a finished grid's runs start from."""
+    import json
+
+    grid = json.loads((out / "grid.json").read_text())
+    args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
+                       ",".join(grid["methods"]), "--out", str(out), "--work", str(work),
+                       "--seeds", ",".join(map(str, grid["seeds"]))])
+    for key, value in grid.get("overrides", {}).items():  # as the grid's parse_args gave them (JSON: list → tuple)
+        setattr(args, key, tuple(value) if isinstance(value, list) else value)
+    return {s.key: s for s in build_specs(args)[0]}
+
+
 def _stop_on_signals() -> None:
     """SIGTERM (a scheduler, `kill`) stops the grid like Ctrl-C: runs in flight are stopped, finished ones kept.
     SIGINT gets Python's handler back even when the driver was started in the background (where shells ignore

@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     variant = VARIANTS[args.variant]
 
-    from .driver import build_specs, parse_args
+    from .driver import specs_of_grid
 
     grid = json.loads((args.out / "grid.json").read_text())
     done_path = args.out / f"variant_{args.variant}.json"
@@ -83,12 +83,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{args.out / 'results.jsonl'} (the grid ran methods {', '.join(grid['methods'])}); nothing to "
               "evaluate, nothing written. Check the filters, or run the grid first.", file=sys.stderr)
         return 2
-    grid_args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
-                            ",".join(grid["methods"]), "--out", str(args.out), "--work", str(args.work),
-                            "--seeds", ",".join(map(str, grid["seeds"]))])
-    for key, value in grid.get("overrides", {}).items():  # as the grid's parse_args gave them (JSON: list → tuple)
-        setattr(grid_args, key, tuple(value) if isinstance(value, list) else value)
-    specs = {s.key: s for s in build_specs(grid_args)[0]}
+    specs = specs_of_grid(args.out, args.work)
     for r in records:
         if r["key"] not in specs or "atv_variant" in done.get(r["key"], {}):
             continue
