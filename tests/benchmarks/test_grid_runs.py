@@ -70,7 +70,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     split = gap["placement"]  # each start against the demos' range of observation.environment_state
     assert split["inside"][1] + split["outside"][1] == 2 and split["inside"][0] + split["outside"][0] == gap["successes"]
     md = (out / "expert_gap.md").read_text()
-    assert (out / "expert_gap.png").stat().st_size > 5000 and "reach · focal · 0" in md and "| reach | " in md
+    assert (out / "expert_gap.png").stat().st_size > 5000 and "reach · focal · 0" in md and "| reach · focal | " in md
     capsys.readouterr()
     assert expert_gap.main(["--out", str(out), "--work", str(work), "--episodes", "2"]) == 0
     assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped, no progress line

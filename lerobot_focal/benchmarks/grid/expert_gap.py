@@ -130,13 +130,13 @@ def render(done: dict[str, dict]) -> str:
           "demonstrator) is asked what it would do. Mean |policy − expert| per action dimension, actions in "
           "[−1, 1]; \"never held\" = MetaWorld's `grasp_success` was never set. Its episodes are its own (20 by "
           "default), so its success counts scatter around the grid's fresh-episode number.", ""]
-    md += ["## Summed over each task's runs", "",
-           "| task | episodes that succeed | failures that never held the object | success, placement inside the "
+    md += ["## Summed over seeds", "",
+           "| task · method | episodes that succeed | failures that never held the object | success, placement inside the "
            "demos' range | success, placement outside it in ≥ 1 coordinate |", "|---|---|---|---|---|"]
-    for task, v in sorted(task_totals(done).items()):
+    for run, v in sorted(task_totals(done).items()):
         cells = [f"{a} / {b}" if (a, b) != (None, None) else "–"
                  for a, b in (v.get(k, (None, None)) for k in ("success", "never_held", "inside", "outside"))]
-        md.append(f"| {task} | " + " | ".join(cells) + " |")
+        md.append(f"| {run} | " + " | ".join(cells) + " |")
     md.append("")
     for key in sorted(done):
         r = done[key]
@@ -169,11 +169,12 @@ def _placement_text(split: dict | None) -> str:
 
 
 def task_totals(done: dict[str, dict]) -> dict[str, dict[str, list[int]]]:
-    """Per task, summed over its runs: successes / episodes, failures that never held the object / failures, and
-    the placement split (when measured)."""
+    """Per task and method, summed over seeds: successes / episodes, failures that never held the object /
+    failures, and the placement split (when measured)."""
     totals: dict[str, dict[str, list[int]]] = {}
     for key, r in done.items():
-        t = totals.setdefault(key.split("|")[0], {"success": [0, 0], "never_held": [0, 0]})
+        task, method, _seed = key.split("|")
+        t = totals.setdefault(f"{task} · {method}", {"success": [0, 0], "never_held": [0, 0]})
         failures = r["episodes"] - r["successes"]
         for name, pair in (("success", (r["successes"], r["episodes"])),
                            ("never_held", (r["failures_never_grasped"], failures)),
