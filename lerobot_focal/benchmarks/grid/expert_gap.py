@@ -183,30 +183,50 @@ def task_totals(done: dict[str, dict]) -> dict[str, dict[str, list[int]]]:
     return totals
 
 
+def _mean_windows(runs: list[dict], name: str) -> tuple[list[float], np.ndarray]:
+    """Window centres and the gap per dimension averaged over runs (each run's window counts once)."""
+    by_start: dict[int, list[list[float]]] = {}
+    for r in runs:
+        for row in r["windows"][name]:
+            by_start.setdefault(row["start"], []).append(row["gap"])
+    starts = sorted(by_start)
+    return [s + WINDOW / 2 for s in starts], np.array([np.mean(by_start[s], axis=0) for s in starts])
+
+
 def plot(done: dict[str, dict], path: Path) -> None:
+    """One row per task, one column per action dimension; a colour per method, failures solid, successes dashed,
+    each the mean over the method's seeds."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = sorted(done)
-    fig, axes = plt.subplots(len(keys), len(DIMS), figsize=(3.2 * len(DIMS), 2.4 * len(keys)), squeeze=False,
+    runs: dict[str, dict[str, list[dict]]] = {}
+    for key, r in done.items():
+        task, method, _seed = key.split("|")
+        runs.setdefault(task, {}).setdefault(method, []).append(r)
+    methods = sorted({m for per_task in runs.values() for m in per_task})
+    colours = {m: f"C{i}" for i, m in enumerate(methods)}
+    tasks = sorted(runs)
+    fig, axes = plt.subplots(len(tasks), len(DIMS), figsize=(3.2 * len(DIMS), 2.4 * len(tasks)), squeeze=False,
                              sharey=True)
-    for row, key in zip(axes, keys, strict=True):
+    for row, task in zip(axes, tasks, strict=True):
+        for method, method_runs in sorted(runs[task].items()):
+            for name, style, plural in (("failure", "-", "failures"), ("success", "--", "successes")):
+                x, gaps = _mean_windows(method_runs, name)
+                for d, ax in enumerate(row):
+                    if len(x):
+                        ax.plot(x, gaps[:, d], style, marker="o", ms=3, color=colours[method],
+                                label=f"{method}, {plural}" if d == 0 else None)
         for d, ax in enumerate(row):
-            for name, colour in (("success", "tab:green"), ("failure", "tab:red")):
-                rows = done[key]["windows"][name]
-                if rows:
-                    ax.plot([r["start"] + WINDOW / 2 for r in rows], [r["gap"][d] for r in rows], "o-",
-                            color=colour, label=f"{name}es" if name == "success" else "failures")
-            ax.set_title(f"{key.replace('|', ' · ')}: {DIMS[d]}", fontsize=8)
+            ax.set_title(f"{task}: {DIMS[d]}", fontsize=9)
             ax.grid(alpha=0.3)
         row[0].set_ylabel("|policy − expert|")
     axes[0][0].legend(fontsize=7)
     for ax in axes[-1]:
         ax.set_xlabel("episode step")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
