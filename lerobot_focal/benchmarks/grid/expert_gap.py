@@ -45,7 +45,6 @@ def measure(checkpoint: Path, episodes: int, first_seed: int, metrics_path: Path
 
     ``demo_stats``: the training dataset's ``meta/stats.json``; with it, each episode's placement is checked
     against the demos' range of ``observation.environment_state``."""
-    import torch
     from lerobot.configs.train import TrainPipelineConfig
     from lerobot.envs.factory import make_env, make_env_pre_post_processors
     from lerobot.scripts.lerobot_eval import rollout
@@ -75,10 +74,9 @@ def measure(checkpoint: Path, episodes: int, first_seed: int, metrics_path: Path
         grasped.append(np.asarray(env.call("object_grasped"), dtype=bool))
 
     set_seed(first_seed)  # the policy's noise draws too, as lerobot-eval seeds them: reruns give the same numbers
-    try:
-        with torch.no_grad():
-            out = rollout(vec, policy, env_pre, env_post, pre, post,
-                          seeds=[first_seed + i for i in range(episodes)], render_callback=record)
+    try:  # rollout runs the policy under torch.inference_mode itself
+        out = rollout(vec, policy, env_pre, env_post, pre, post,
+                      seeds=[first_seed + i for i in range(episodes)], render_callback=record)
     finally:
         vec.close()
     actions = np.clip(out["action"].numpy(), -1.0, 1.0)  # MetaWorld clips what it is given; the expert too
