@@ -76,6 +76,23 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped, no progress line
     assert expert_gap.main(["--out", str(out), "--work", str(work), "--methods", "diffusion"]) == 2
 
+    # The same checkpoint's one-step map measured along the flow, on the run's demos and held-out episodes.
+    from lerobot_focal.benchmarks.grid import tau_profile
+
+    assert tau_profile.main(["--out", str(out), "--work", str(work), "--frames", "16"]) == 0
+    prof = json.loads((out / "tau_profile.json").read_text())["reach|focal|0"]
+    for split in ("train", "heldout"):
+        p = prof[split]
+        assert p["taus"][0] == 0.01 and p["taus"][-1] == 0.99  # first: the policy's own inference point time_eps
+        assert 0 < p["frames"] <= 16 and len(p["proximal"]) == len(p["macro"]) == len(p["taus"])
+        assert all(x >= 0 for x in p["proximal"] + p["macro"]) and p["reference"]["macro"] > 0
+        assert p["proximal"][-1] < p["proximal"][0]  # f(M_0.99) is within (1 − τ)·|v − u| of the data
+    assert (out / "tau_profile.png").stat().st_size > 5000 and "| reach · focal |" in (out / "tau_profile.md").read_text()
+    capsys.readouterr()
+    assert tau_profile.main(["--out", str(out), "--work", str(work), "--frames", "16"]) == 0
+    assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped
+    assert tau_profile.main(["--out", str(out), "--work", str(work), "--methods", "wo_las"]) == 2
+
 
 def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     pytest.importorskip("ray")

@@ -280,3 +280,37 @@ def test_variant_table_pairs_success_and_atv_and_keeps_run_keys_out_of_the_colum
     assert "| push-wall · focal · 1 | 50 | 70 % | 60 % | – | – |" in md
     assert "starting noise 0 − grid: -7.3 points over 3 runs" in md
     assert "− grid: -0.0600 over 2 runs, 95 % interval" in md and "(lower / equal / higher: 2 / 0 / 0)" in md
+
+
+def test_tau_profile_scores_the_one_step_map_on_valid_steps_of_each_window():
+    """With the network's output layer zeroed (v ≡ 0) the one-step map is f(M_τ, τ) = M_τ, so its error against
+    the expert chunk is (1 − τ)²·(M_0 − M_1)² exactly: checks the interpolation, the proximal/macro windows, the
+    padded steps left out, and the averaging over noise draws."""
+    import torch
+
+    from lerobot_focal.benchmarks.grid.tau_profile import one_step_errors
+    from tests.policy.helpers import small_policy
+
+    policy = small_policy(pointcloud=None, action=2)
+    policy.eval()
+    for net in (policy.model, policy.ema_model):
+        torch.nn.init.zeros_(net.velocity_net.unet.final_conv[-1].weight)
+        torch.nn.init.zeros_(net.velocity_net.unet.final_conv[-1].bias)
+    h, length = policy.config.chunk_size, policy.config.horizon
+    g = torch.Generator().manual_seed(0)
+    m1 = torch.randn(3, length, 2, generator=g)
+    pad = torch.zeros(3, length, dtype=torch.bool)
+    pad[2, length - 5:] = True  # the last frame's chunk runs past its episode's end
+    batch = {"observation.state": torch.randn(3, 2, 9, generator=g), "action": m1, "action_is_pad": pad}
+    noise = [torch.randn(3, length, 2, generator=g) for _ in range(2)]
+    taus = (0.01, 0.5, 0.99)
+    with torch.inference_mode():
+        got = one_step_errors(policy, batch, taus, noise)
+    for i, tau in enumerate(taus):
+        per_step = torch.stack([((1 - tau) * (m0 - m1)).pow(2).mean(-1) for m0 in noise]).mean(0)  # (B, L)
+        valid = ~pad
+        macro = sum(per_step[b][valid[b]].mean() for b in range(3))
+        proximal = sum(per_step[b, :h][valid[b, :h]].mean() for b in range(3))
+        assert got["macro"][i] == pytest.approx(float(macro), rel=1e-5)
+        assert got["proximal"][i] == pytest.approx(float(proximal), rel=1e-5)
+    assert got["proximal"][0] > 100 * got["proximal"][-1]  # (1 − τ)²: 0.98 against 0.0001

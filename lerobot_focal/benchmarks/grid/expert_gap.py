@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from .results import ResultsFile
+from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
 
 EXPERT_GAP_SEED = 300_000
 #: Coordinates of MetaWorld's 39-d observation that a reset randomises: first and second object position, goal.
@@ -231,11 +230,7 @@ def plot(done: dict[str, dict], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.expert_gap", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", type=Path, required=True, help="the grid's --out directory")
-    p.add_argument("--work", type=Path, default=Path("outputs/bench"), help="the grid's --work directory")
-    p.add_argument("--methods", default="focal", help="methods to measure (comma-separated)")
-    p.add_argument("--tasks", default="", help="only these tasks (comma-separated; default: all)")
-    p.add_argument("--seeds", default="", help="only these seeds (comma-separated; default: all)")
+    add_run_filters(p, "focal")
     p.add_argument("--episodes", type=int, default=20, help="episodes per run (default 20)")
     args = p.parse_args(argv)
     if args.episodes < 1:
@@ -243,24 +238,18 @@ def main(argv: list[str] | None = None) -> int:
 
     from .driver import specs_of_grid
 
-    tasks = {t for t in args.tasks.split(",") if t}
-    seeds = {int(s) for s in args.seeds.split(",") if s}
-    records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
-               if r["method"] in args.methods.split(",")
-               and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
+    records = finished_runs(args)
     if not records:
-        print(f"expert_gap: no finished run of --methods {args.methods} matches in {args.out / 'results.jsonl'}; "
-              "nothing measured, nothing written. Check the filters, or run the grid first.", file=sys.stderr)
+        no_runs_message("expert_gap", args)
         return 2
     done_path = args.out / "expert_gap.json"
     done = json.loads(done_path.read_text()) if done_path.exists() else {}
     specs = specs_of_grid(args.out, args.work)
-    for r in sorted(records, key=lambda r: r["key"]):
+    for r in records:
         spec = specs.get(r["key"])
         if spec is None or done.get(r["key"], {}).get("episodes") == args.episodes:
             continue
-        checkpoint = spec.run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
-        done[r["key"]] = measure(checkpoint, args.episodes, EXPERT_GAP_SEED + 1000 * spec.seed,
+        done[r["key"]] = measure(checkpoint_of(spec.run_dir), args.episodes, EXPERT_GAP_SEED + 1000 * spec.seed,
                                  spec.run_dir / "expert_gap_episodes.jsonl", spec.data.train_root / "meta" / "stats.json")
         done_path.write_text(json.dumps(done, indent=1))
         print(f"{r['key']}: {done[r['key']]['successes']} / {args.episodes} succeed, "

@@ -25,6 +25,7 @@ from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
+from .revisit import checkpoint_of
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
 #: Environment seeds of the final fresh-episode evaluation: seed k of a run evaluates FINAL_EVAL_SEED + 1000·k
@@ -149,7 +150,7 @@ def run_one(spec: RunSpec) -> dict:
         raise RunFailed(f"expected {p.steps // p.eval_every} evaluations, found {len(curve)} in {out}")
     updates = [float(x) for x in UPDATE_RE.findall((out / "train.log").read_text(errors="replace"))]
 
-    checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
+    checkpoint = checkpoint_of(out)
     final: dict = {}
     if p.final_episodes:
         t1 = time.perf_counter()

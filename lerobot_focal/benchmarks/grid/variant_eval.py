@@ -26,13 +26,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 from .metrics import paired_difference
-from .results import ResultsFile
 from .processes import run_logged
+from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
 from .run import child_env, final_eval_command
 
 
@@ -58,11 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.variant_eval", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variant", choices=sorted(VARIANTS), required=True)
-    p.add_argument("--out", type=Path, required=True, help="the grid's --out directory")
-    p.add_argument("--work", type=Path, default=Path("outputs/bench"), help="the grid's --work directory")
-    p.add_argument("--methods", default="focal,focal_online", help="focal-family methods to compare")
-    p.add_argument("--tasks", default="", help="only these tasks (comma-separated; default: all)")
-    p.add_argument("--seeds", default="", help="only these seeds (comma-separated; default: all)")
+    add_run_filters(p, "focal,focal_online", "focal-family methods to compare")
     args = p.parse_args(argv)
     variant = VARIANTS[args.variant]
 
@@ -71,17 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     grid = json.loads((args.out / "grid.json").read_text())
     done_path = args.out / f"variant_{args.variant}.json"
     done = json.loads(done_path.read_text()) if done_path.exists() else {}
-    tasks = {t for t in args.tasks.split(",") if t}
-    seeds = {int(s) for s in args.seeds.split(",") if s}
-    records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
-               if r["method"] in args.methods.split(",") and "success_fresh" in r
-               and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
+    records = finished_runs(args, need=("success_fresh",))
     if not records and not done:
-        given = (args.tasks and f"--tasks {args.tasks}", args.seeds and f"--seeds {args.seeds}")
-        filters = " and ".join(f for f in given if f)
-        print(f"variant_eval: no finished run of --methods {args.methods}{' with ' + filters if filters else ''} in "
-              f"{args.out / 'results.jsonl'} (the grid ran methods {', '.join(grid['methods'])}); nothing to "
-              "evaluate, nothing written. Check the filters, or run the grid first.", file=sys.stderr)
+        no_runs_message("variant_eval", args, grid["methods"])
         return 2
     specs = specs_of_grid(args.out, args.work)
     for r in records:
@@ -90,8 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         spec = specs[r["key"]]
         episodes_file = spec.run_dir / f"{args.variant}_episodes.jsonl"
         if r["key"] not in done:
-            checkpoint = spec.run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
-            cmd = [*final_eval_command(spec, checkpoint, name=args.variant), *variant.overrides]
+            cmd = [*final_eval_command(spec, checkpoint_of(spec.run_dir), name=args.variant), *variant.overrides]
             run_logged(cmd, spec.run_dir / f"{args.variant}_eval.log", child_env(spec.preset),
                        f"lerobot-eval ({variant.label})")
         elif not episodes_file.exists():

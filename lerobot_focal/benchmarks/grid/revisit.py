@@ -1,0 +1,47 @@
+"""Shared command line of the tools that revisit a finished grid's runs (expert_gap, variant_eval, tau_profile).
+
+They all take the grid's ``--out``/``--work`` and filter its finished runs by method, task and seed; this is that
+command line and that filter, so each tool only says what it measures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .results import ResultsFile
+
+
+def add_run_filters(p: argparse.ArgumentParser, methods: str, methods_help: str = "methods to measure") -> None:
+    p.add_argument("--out", type=Path, required=True, help="the grid's --out directory")
+    p.add_argument("--work", type=Path, default=Path("outputs/bench"), help="the grid's --work directory")
+    p.add_argument("--methods", default=methods, help=f"{methods_help} (comma-separated; default {methods})")
+    p.add_argument("--tasks", default="", help="only these tasks (comma-separated; default: all)")
+    p.add_argument("--seeds", default="", help="only these seeds (comma-separated; default: all)")
+
+
+def finished_runs(args: argparse.Namespace, need: tuple[str, ...] = ()) -> list[dict]:
+    """The grid's finished runs (records of ``results.jsonl``) that pass the filters and hold every key of
+    ``need``, sorted by run key."""
+    tasks = {t for t in args.tasks.split(",") if t}
+    seeds = {int(s) for s in args.seeds.split(",") if s}
+    methods = set(args.methods.split(","))
+    records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
+               if r["method"] in methods and all(k in r for k in need)
+               and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
+    return sorted(records, key=lambda r: r["key"])
+
+
+def no_runs_message(tool: str, args: argparse.Namespace, grid_methods: list[str] | None = None) -> None:
+    """Say on stderr that the filters matched nothing, and what to check."""
+    given = [f for f in (args.tasks and f"--tasks {args.tasks}", args.seeds and f"--seeds {args.seeds}") if f]
+    ran = f" (the grid ran methods {', '.join(grid_methods)})" if grid_methods else ""
+    print(f"{tool}: no finished run of --methods {args.methods}{' with ' + ' and '.join(given) if given else ''} "
+          f"in {args.out / 'results.jsonl'}{ran}; nothing measured, nothing written. Check the filters, or run the "
+          "grid first.", file=sys.stderr)
+
+
+def checkpoint_of(run_dir: Path) -> Path:
+    """The final checkpoint a grid run's training wrote (LeRobot's ``checkpoints/last`` link)."""
+    return run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
