@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
+from .revisit import add_run_filters, checkpoint_of, measure_runs
 
 EXPERT_GAP_SEED = 300_000
 #: Coordinates of MetaWorld's 39-d observation that a reset randomises: first and second object position, goal.
@@ -236,24 +236,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         p.error(f"--episodes must be at least 1, got {args.episodes}")
 
-    from .driver import specs_of_grid
+    def measure_run(spec) -> dict:
+        return measure(checkpoint_of(spec.run_dir), args.episodes, EXPERT_GAP_SEED + 1000 * spec.seed,
+                       spec.run_dir / "expert_gap_episodes.jsonl", spec.data.train_root / "meta" / "stats.json")
 
-    records = finished_runs(args)
-    if not records:
-        no_runs_message("expert_gap", args)
+    done = measure_runs("expert_gap", args, measure_run, lambda e: e.get("episodes") == args.episodes,
+                        lambda key, e: f"{key}: {e['successes']} / {args.episodes} succeed, "
+                                       f"{e['failures_never_grasped']} failures never held the object")
+    if done is None:
         return 2
-    done_path = args.out / "expert_gap.json"
-    done = json.loads(done_path.read_text()) if done_path.exists() else {}
-    specs = specs_of_grid(args.out, args.work)
-    for r in records:
-        spec = specs.get(r["key"])
-        if spec is None or done.get(r["key"], {}).get("episodes") == args.episodes:
-            continue
-        done[r["key"]] = measure(checkpoint_of(spec.run_dir), args.episodes, EXPERT_GAP_SEED + 1000 * spec.seed,
-                                 spec.run_dir / "expert_gap_episodes.jsonl", spec.data.train_root / "meta" / "stats.json")
-        done_path.write_text(json.dumps(done, indent=1))
-        print(f"{r['key']}: {done[r['key']]['successes']} / {args.episodes} succeed, "
-              f"{done[r['key']]['failures_never_grasped']} failures never held the object", flush=True)
     (args.out / "expert_gap.md").write_text(render(done))
     plot(done, args.out / "expert_gap.png")
     print(render(done))

@@ -7,7 +7,9 @@ command line and that filter, so each tool only says what it measures.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from .results import ResultsFile
@@ -45,3 +47,30 @@ def no_runs_message(tool: str, args: argparse.Namespace, grid_methods: list[str]
 def checkpoint_of(run_dir: Path) -> Path:
     """The final checkpoint a grid run's training wrote (LeRobot's ``checkpoints/last`` link)."""
     return run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
+
+
+def measure_runs(tool: str, args: argparse.Namespace, measure: Callable, measured: Callable[[dict], bool],
+                 progress: Callable[[str, dict], str]) -> dict[str, dict] | None:
+    """Measure each finished run the filters select, by run key, into ``<out>/<tool>.json``.
+
+    ``measure(spec)`` gives a run's entry; runs whose saved entry ``measured`` accepts are skipped, and the file
+    is rewritten after each run, so an interrupted pass keeps what it measured and the next one resumes. Prints
+    ``progress(key, entry)`` per run measured. None (after saying why) when the filters match no finished run.
+    """
+    from .driver import specs_of_grid
+
+    records = finished_runs(args)
+    if not records:
+        no_runs_message(tool, args)
+        return None
+    done_path = args.out / f"{tool}.json"
+    done = json.loads(done_path.read_text()) if done_path.exists() else {}
+    specs = specs_of_grid(args.out, args.work)
+    for r in records:
+        spec = specs.get(r["key"])
+        if spec is None or (r["key"] in done and measured(done[r["key"]])):
+            continue
+        done[r["key"]] = measure(spec)
+        done_path.write_text(json.dumps(done, indent=1))
+        print(progress(r["key"], done[r["key"]]), flush=True)
+    return done

@@ -27,14 +27,13 @@ are skipped. A low-dimensional run takes a few seconds.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from .results import ResultsFile
-from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
+from .revisit import add_run_filters, checkpoint_of, measure_runs
 
 TAUS = (0.01, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)
 FRAMES = 512  # evenly spaced frames per dataset
@@ -210,27 +209,19 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--frames must be at least 1, got {args.frames}")
     torch.set_num_threads(1)  # a side measurement: leave the cores to the grid it usually runs beside
 
-    from .driver import specs_of_grid
-
-    records = finished_runs(args)
-    if not records:
-        no_runs_message("tau_profile", args)
-        return 2
-    done_path = args.out / "tau_profile.json"
-    done = json.loads(done_path.read_text()) if done_path.exists() else {}
-    specs = specs_of_grid(args.out, args.work)
-    for r in records:
-        spec = specs.get(r["key"])
-        if spec is None or done.get(r["key"], {}).get("frames_asked") == args.frames:
-            continue
-        ckpt = checkpoint_of(spec.run_dir)
-        done[r["key"]] = {split: profile(ckpt, root, repo, args.frames) for split, root, repo in (
+    def measure(spec) -> dict:
+        return {split: profile(checkpoint_of(spec.run_dir), root, repo, args.frames) for split, root, repo in (
             ("train", spec.data.train_root, spec.data.train_repo_id),
             ("heldout", spec.data.heldout_root, spec.data.heldout_repo_id))} | {"frames_asked": args.frames}
-        done_path.write_text(json.dumps(done, indent=1))
-        tr = done[r["key"]]["train"]
-        print(f"{r['key']}: proximal error at τ = {tr['taus'][0]:g}: {tr['proximal'][0]:.4f}, at τ = "
-              f"{tr['taus'][-1]:g}: {tr['proximal'][-1]:.4f} (reference {tr['reference']['proximal']:.4f})", flush=True)
+
+    def progress(key: str, entry: dict) -> str:
+        tr = entry["train"]
+        return (f"{key}: proximal error at τ = {tr['taus'][0]:g}: {tr['proximal'][0]:.4f}, at τ = {tr['taus'][-1]:g}: "
+                f"{tr['proximal'][-1]:.4f} (reference {tr['reference']['proximal']:.4f})")
+
+    done = measure_runs("tau_profile", args, measure, lambda e: e.get("frames_asked") == args.frames, progress)
+    if done is None:
+        return 2
     scores = {k: r["success_top_k"] for k, r in ResultsFile(args.out / "results.jsonl").ok().items()}
     (args.out / "tau_profile.md").write_text(render(done, scores))
     plot(done, args.out / "tau_profile.png")
