@@ -170,6 +170,12 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
     assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+    assert "## Diagnostics" not in report  # none written yet: no section
+    (tmp_path / "variant_nfe4.md").write_text("x")
+    (tmp_path / "tau_profile.md").write_text("x")
+    diag = write_report(tmp_path).read_text().split("## Diagnostics of the finished runs")[1]
+    assert "[tau_profile](tau_profile.md)" in diag and "[variant_nfe4](variant_nfe4.md)" in diag
+    assert "expert_gap" not in diag  # only what is there is linked
 
 
 def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end():

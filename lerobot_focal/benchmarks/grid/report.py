@@ -279,11 +279,33 @@ def write_report(out_dir: Path) -> Path:
     md += ["## Goals, measured side by side in this grid", ""] + _goals(records, tasks, methods, label) + [""]
     md += ["## Plots", "", "![learning curves](learning_curves.png)", "", "![success](success_bars.png)", "",
            "![compounding error](compounding_error.png)", ""]
+    md += _diagnostics(out_dir)
     (out_dir / "report.md").write_text("\n".join(md))
     summary = {"grid": grid, "methods": summary_table(records, grid), "aggregate": agg}
     (out_dir / "summary.json").write_text(json.dumps(_nan_to_none(summary), indent=1))
     _plots(out_dir, agg, records, tasks, methods, label, preset)
     return out_dir / "report.md"
+
+
+#: Analyses of a finished grid's runs written beside its report: (file pattern, tool module, what it asks).
+DIAGNOSTICS: tuple[tuple[str, str, str], ...] = (
+    ("expert_gap.md", "expert_gap", "Where do the runs fail? Each final checkpoint against MetaWorld's scripted "
+                                    "expert, state by state, and success inside / outside the demos' placements."),
+    ("tau_profile.md", "tau_profile", "Where along the flow is each focal-family checkpoint's one-step map still "
+                                      "wrong, on its demos and on held-out episodes?"),
+    ("variant_*.md", "variant_eval", "Would the final checkpoints act better with another inference setting, on "
+                                     "the same fresh episodes?"),
+)
+
+
+def _diagnostics(out_dir: Path) -> list[str]:
+    """One line per diagnostic tool whose output is in ``out_dir``, linking its files; no section if none."""
+    rows = []
+    for pattern, tool, question in DIAGNOSTICS:
+        links = ", ".join(f"[{path.stem}]({path.name})" for path in sorted(out_dir.glob(pattern)))
+        if links:
+            rows.append(f"- {links} (`python -m lerobot_focal.benchmarks.grid.{tool}`): {question}")
+    return ["## Diagnostics of the finished runs", "", *rows, ""] if rows else []
 
 
 def _nan_to_none(x):
