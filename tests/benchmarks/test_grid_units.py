@@ -320,3 +320,23 @@ def test_tau_profile_scores_the_one_step_map_on_valid_steps_of_each_window():
         assert got["macro"][i] == pytest.approx(float(macro), rel=1e-5)
         assert got["proximal"][i] == pytest.approx(float(proximal), rel=1e-5)
     assert got["proximal"][0] > 100 * got["proximal"][-1]  # (1 − τ)²: 0.98 against 0.0001
+
+
+def test_tau_profile_pairs_runs_by_task_and_seed_with_geometric_mean_ratios():
+    from lerobot_focal.benchmarks.grid.tau_profile import render
+
+    def run(errors):
+        split = {"taus": [0.01, 0.99], "frames": 8, "proximal": errors, "macro": errors,
+                 "reference": {"proximal": 0.2, "macro": 0.2}}
+        return {"train": split, "heldout": split}
+
+    done = {"pick-place|wo_las|0": run([0.04, 0.001]), "pick-place|wo_fco_las|0": run([0.01, 0.001]),
+            "sweep-into|wo_las|0": run([0.01, 0.002]), "sweep-into|wo_fco_las|0": run([0.01, 0.001]),
+            "sweep-into|wo_fco_las|1": run([0.5, 0.5])}  # no wo_las partner: left out of the pairs
+    md = render(done, {"pick-place|wo_las|0": 0.3})
+    paired = md.split("## Paired at τ = ε")[1]
+    # ε: 4× and 1× → geometric mean 2×, lower in neither pair; τ = 0.99: 1× and 2× → √2.
+    assert "| wo_las / wo_fco_las | 2 | 2.00× (0 of 2 lower) |" in paired
+    assert "| wo_las / wo_fco_las (2 pairs) | 2.00× | 1.41× |" in paired
+    assert "focal / " not in paired  # pairs whose methods were not measured are not shown
+    assert "| pick-place · wo_las | 30 |" in md and "| sweep-into · wo_las | – |" in md

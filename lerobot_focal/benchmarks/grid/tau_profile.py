@@ -136,23 +136,41 @@ def render(done: dict[str, dict], scores: dict[str, float]) -> str:
                "Geometric mean over the pairs of the first method's error over the second's, and the pairs where "
                "the first is lower.", "",
                "| methods | pairs | proximal, demos | proximal, held-out | macro, demos | macro, held-out |",
-               "|---|---|---|---|---|---|", *paired]
+               "|---|---|---|---|---|---|", *paired, "",
+               "The same ratio at every τ (proximal chunk, demos): where along the flow the gap opens.", "",
+               "| methods | " + " | ".join(f"τ={t:g}" for t in taus) + " |", "|---|" + "---|" * len(taus),
+               *(row for a, b in PAIRS if (row := _ratio_by_tau_row(done, a, b)))]
     return "\n".join(md) + "\n"
 
 
-def _paired_row(done: dict[str, dict], a: str, b: str) -> str | None:
+def _common(done: dict[str, dict], a: str, b: str) -> list[tuple[dict, dict]]:
+    """(run of a, run of b) for every task and seed both methods were measured on."""
     runs = {tuple(k.split("|")): r for k, r in done.items()}
-    common = sorted((t, s) for (t, m, s) in runs if m == a and (t, b, s) in runs)
-    if not common:
+    return [(runs[(t, a, s)], runs[(t, b, s)]) for (t, m, s) in sorted(runs) if m == a and (t, b, s) in runs]
+
+
+def _ratio(pairs: list[tuple[dict, dict]], split: str, window: str, i: int) -> tuple[float, int]:
+    """Geometric mean over the pairs of a's error over b's at the i-th τ, and the pairs where a's is lower."""
+    ea = np.maximum([ra[split][window][i] for ra, _ in pairs], 1e-12)
+    eb = np.maximum([rb[split][window][i] for _, rb in pairs], 1e-12)
+    return float(np.exp(np.mean(np.log(ea / eb)))), int((ea < eb).sum())
+
+
+def _ratio_by_tau_row(done: dict[str, dict], a: str, b: str) -> str | None:
+    pairs = _common(done, a, b)
+    if not pairs:
         return None
-    cells = []
-    for w in WINDOWS:
-        for split in ("train", "heldout"):
-            ea = np.array([runs[(t, a, s)][split][w][0] for t, s in common])
-            eb = np.array([runs[(t, b, s)][split][w][0] for t, s in common])
-            ratio = float(np.exp(np.mean(np.log(np.maximum(ea, 1e-12) / np.maximum(eb, 1e-12)))))
-            cells.append(f"{ratio:.2f}× ({int((ea < eb).sum())} of {len(common)} lower)")
-    return f"| {a} / {b} | {len(common)} | " + " | ".join(cells) + " |"
+    cells = [_ratio(pairs, "train", "proximal", i) for i in range(len(pairs[0][0]["train"]["taus"]))]
+    return f"| {a} / {b} ({len(pairs)} pairs) | " + " | ".join(f"{r:.2f}×" for r, _ in cells) + " |"
+
+
+def _paired_row(done: dict[str, dict], a: str, b: str) -> str | None:
+    pairs = _common(done, a, b)
+    if not pairs:
+        return None
+    cells = [_ratio(pairs, split, w, 0) for w in WINDOWS for split in ("train", "heldout")]
+    return (f"| {a} / {b} | {len(pairs)} | "
+            + " | ".join(f"{r:.2f}× ({lower} of {len(pairs)} lower)" for r, lower in cells) + " |")
 
 
 def _groups(done: dict[str, dict]) -> dict[tuple[str, str], list[dict]]:
