@@ -79,6 +79,9 @@ def test_every_paper_ablation_is_a_method_with_its_switch():
             continue  # not in the paper's benchmark tables
         assert f"--policy.ablation={name}" in METHODS[name].train_args(PRESETS["cpu"])
     assert "--policy.consistency_target=online" in METHODS["focal_online"].train_args(PRESETS["cpu"])
+    macro = METHODS["wo_las_macro"].train_args(PRESETS["cpu"])
+    assert {"--policy.ablation=wo_las", "--policy.time_loss_window=macro", "--policy.consistency_target=online"} <= set(macro)
+    assert "wo_las_macro" not in [m.name for m in resolve_methods("all")]  # a diagnostic, not a paper method
     args = METHODS["diffusion"].train_args(PRESETS["cpu"])
     assert "--policy.noise_scheduler_type=DDIM" in args and "--policy.num_inference_steps=10" in args
     # Same U-Net channels for every method.

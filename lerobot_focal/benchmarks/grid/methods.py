@@ -102,13 +102,19 @@ METHODS: dict[str, Method] = {
         Method("focal_pc", "FocalPolicy (512-pt cloud)", "focal", obs_type="pointcloud"),
         Method("wo_las_ema", "w/o LAS (EMA target)", "focal", ("--policy.ablation=wo_las",)),
         Method("wo_fco_las_ema", "w/o FCO & LAS (EMA target)", "focal", ("--policy.ablation=wo_fco_las",)),
+        # Not in the paper: w/o LAS with L_time over all L steps, as FlowPolicy's consistency loss covers them. It
+        # tests whether that window is why w/o LAS trails w/o FCO & LAS at the plateau budget (docs/benchmarks.md).
+        Method("wo_las_macro", "w/o LAS, L_time on all L steps", "focal",
+               ("--policy.ablation=wo_las", "--policy.time_loss_window=macro", ONLINE)),
         Method("diffusion", "DP (DDIM 10)", "diffusion"),
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
     ]
 }
 
+#: Methods that answer a question about this implementation, not one of the paper's: never in `--methods all`.
+DIAGNOSTIC_METHODS: tuple[str, ...] = ("wo_las_macro",)
 #: What `--methods all` expands to: the full comparison of the paper's tables.
-PAPER_METHODS: tuple[str, ...] = tuple(METHODS)
+PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m not in DIAGNOSTIC_METHODS)
 #: The minimum comparison, what the smoke-scale CPU grid in docs/benchmarks/grid_cpu covers.
 CORE_METHODS: tuple[str, ...] = ("focal", "wo_las", "wo_fco_las", "diffusion")
 #: The plateau grid, in phases: the first answers the main question (focal against the strongest baseline and
