@@ -106,13 +106,17 @@ METHODS: dict[str, Method] = {
         # tests whether that window is why w/o LAS trails w/o FCO & LAS at the plateau budget (docs/benchmarks.md).
         Method("wo_las_macro", "w/o LAS, L_time on all L steps", "focal",
                ("--policy.ablation=wo_las", "--policy.time_loss_window=macro", ONLINE)),
+        # Not in the paper: FlowPolicy's objective with one segment instead of two; with wo_las_macro it tells which
+        # of the two differences left between w/o LAS and w/o FCO & LAS (segments, λ·L_freq) makes the gap.
+        Method("wo_fco_las_1seg", "w/o FCO & LAS, one segment", "focal",
+               ("--policy.ablation=wo_fco_las", "--policy.cfm_num_segments=1", ONLINE)),
         Method("diffusion", "DP (DDIM 10)", "diffusion"),
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
     ]
 }
 
 #: Methods that answer a question about this implementation, not one of the paper's: never in `--methods all`.
-DIAGNOSTIC_METHODS: tuple[str, ...] = ("wo_las_macro",)
+DIAGNOSTIC_METHODS: tuple[str, ...] = ("wo_las_macro", "wo_fco_las_1seg")
 #: What `--methods all` expands to: the full comparison of the paper's tables.
 PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m not in DIAGNOSTIC_METHODS)
 #: The minimum comparison, what the smoke-scale CPU grid in docs/benchmarks/grid_cpu covers.
