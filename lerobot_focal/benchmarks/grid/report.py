@@ -74,7 +74,8 @@ def _pairs(records: list[dict], a: str, b: str, key: str, tasks: list[str]) -> t
 #: Paired contrasts that isolate one module each, shown when the grid has both methods: (a, b, what a − b says).
 MODULE_CONTRASTS: tuple[tuple[str, str, str], ...] = (
     ("diffusion_fco", "diffusion", "FCO added to diffusion (the paper's Table 2 question)"),
-    ("wo_las", "wo_fco_las", "FCO (one flow segment) instead of FlowPolicy's two-segment objective, both without LAS"),
+    ("wo_las", "wo_fco_las",
+     "FCO (one flow segment) instead of FlowPolicy's two-segment objective, both without LAS"),
 )
 
 

@@ -5,13 +5,13 @@
 
 A consistency flow model acts through one map: from a point M_τ = (1 − τ)·M_0 + τ·M_1 of the straight path
 between noise M_0 and an expert macro-trajectory M_1, it jumps to the data in one step,
-f(M_τ, τ) = M_τ + (1 − τ)·v(M_τ, τ, o). Inference uses it once, at τ = ε (``time_eps``). Training never supervises
-it against the data at small τ: the data enters where the anchor r reaches the data end (r ≥ 1, or FlowPolicy's
-segment end) and the consistency loss has to carry it down to τ = ε, one anchor hop at a time. How far it has come
-is measurable: the MetaWorld experts are deterministic, so the action chunk given the observation is (nearly) one
-trajectory, and ‖f(M_τ, τ) − M_1‖² should be small at every τ once the signal has arrived there. This measures it
-on each run's own demos (and on its held-out episodes), for the inference network ``lerobot-eval`` uses, at the
-flow times ``TAUS``:
+f(M_τ, τ) = M_τ + (1 − τ)·v(M_τ, τ, o). Inference uses it once, at τ = ε (``time_eps``). The consistency loss
+supervises it against the data only where the anchor r reaches the data end (r ≥ 1, or FlowPolicy's segment end)
+and has to carry that down to τ = ε, one anchor hop at a time; FCO's λ·L_freq adds a weak direct term at every τ.
+How far the data has come is measurable: the MetaWorld experts are deterministic, so the action chunk given the
+observation is (nearly) one trajectory, and ‖f(M_τ, τ) − M_1‖² should be small at every τ once the signal has
+arrived there. This measures it on each run's own demos (and on its held-out episodes), for the inference network
+``lerobot-eval`` uses, at the flow times ``TAUS``:
 
 * a profile that is low near τ = 1 and rises towards τ = ε says the data signal has not been carried all the way;
 * a flat, low profile says the objective did its job, and what is left to explain is generalisation.
@@ -21,12 +21,13 @@ steps of the proximal chunk (the executed one) and of the whole macro-trajectory
 M_1 around its mean trajectory (what predicting the average chunk would score). Fixed frames (evenly spaced
 over the dataset) and fixed noise draws, so reruns and methods are compared on the same inputs. Writes
 ``tau_profile.json``, ``tau_profile.md`` and ``tau_profile.png`` beside the grid's report; runs already measured
-are skipped. A low-dimensional run takes a few seconds.
+are skipped. A low-dimensional run takes about half a minute (both datasets, one thread).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -239,6 +240,10 @@ def main(argv: list[str] | None = None) -> int:
 
     done = measure_runs("tau_profile", args, measure, lambda e: e.get("frames_asked") == args.frames, progress)
     if done is None:
+        return 2
+    if not done:
+        print(f"tau_profile: the finished runs in {args.out / 'results.jsonl'} are not runs of the grid in "
+              f"{args.out / 'grid.json'}; nothing measured, nothing written.", file=sys.stderr)
         return 2
     scores = {k: r["success_top_k"] for k, r in ResultsFile(args.out / "results.jsonl").ok().items()}
     (args.out / "tau_profile.md").write_text(render(done, scores))
