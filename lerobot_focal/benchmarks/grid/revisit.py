@@ -1,7 +1,8 @@
 """Shared command line of the tools that revisit a finished grid's runs (expert_gap, variant_eval, tau_profile).
 
-They all take the grid's ``--out``/``--work`` and filter its finished runs by method, task and seed; this is that
-command line and that filter, so each tool only says what it measures.
+They all take the grid's ``--out``/``--work``, filter its finished runs by method, task and seed, and measure each
+selected run once into a JSON file beside the report, resumably; this is that command line, that filter and
+that loop, so each tool only says what it measures.
 """
 
 from __future__ import annotations
