@@ -68,19 +68,23 @@ def one_step_errors(policy, batch: dict[str, torch.Tensor], taus: tuple[float, .
     return sums
 
 
-def profile(checkpoint: Path, root: Path, repo_id: str, frames: int = FRAMES, taus: tuple[float, ...] = TAUS
-            ) -> dict:
-    """The one-step error profile of a checkpoint on a LeRobotDataset on disk (see the module doc). The first
-    flow time is always the policy's own inference point ``time_eps``."""
-    from lerobot.datasets.factory import resolve_delta_timestamps
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-
+def load_focal(checkpoint: Path):
+    """The checkpoint's policy and preprocessor, as ``lerobot-eval`` loads them; refuses a non-focal policy."""
     from .analyze import load_policy
 
     policy, pre, _post = load_policy(checkpoint)
     if policy.config.type != "focal":
         raise SystemExit(f"tau_profile: {checkpoint} is a '{policy.config.type}' policy; the profile is defined for "
                          "focal's flow map only (diffusion has no one-step map to measure)")
+    return policy, pre
+
+
+def profile(policy, pre, root: Path, repo_id: str, frames: int = FRAMES, taus: tuple[float, ...] = TAUS) -> dict:
+    """The one-step error profile of a loaded focal policy on a LeRobotDataset on disk (see the module doc). The
+    first flow time is always the policy's own inference point ``time_eps``."""
+    from lerobot.datasets.factory import resolve_delta_timestamps
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+
     eps = policy.config.time_eps
     taus = (eps, *(t for t in taus if t > eps))
     meta = LeRobotDatasetMetadata(repo_id, root=root)
@@ -229,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)  # a side measurement: leave the cores to the grid it usually runs beside
 
     def measure(spec) -> dict:
-        return {split: profile(checkpoint_of(spec.run_dir), root, repo, args.frames) for split, root, repo in (
+        policy, pre = load_focal(checkpoint_of(spec.run_dir))  # once for both datasets
+        return {split: profile(policy, pre, root, repo, args.frames) for split, root, repo in (
             ("train", spec.data.train_root, spec.data.train_repo_id),
             ("heldout", spec.data.heldout_root, spec.data.heldout_repo_id))} | {"frames_asked": args.frames}
 
