@@ -151,12 +151,13 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     from lerobot_focal.benchmarks.grid.report import write_report
 
     grid = {"preset": {**PRESETS["cpu_plateau"].to_dict()}, "overrides": {}, "tasks": ["pick-place", "push-wall"],
-            "methods": ["focal", "diffusion", "diffusion_fco"], "seeds": [0, 1]}
+            "methods": ["focal", "diffusion", "diffusion_fco", "focal_pc"], "seeds": [0, 1]}
     (tmp_path / "grid.json").write_text(json.dumps(grid))
     results = ResultsFile(tmp_path / "results.jsonl")
-    for method, base in (("focal", 0.6), ("diffusion", 0.4), ("diffusion_fco", 0.45)):
+    for method, base, seeds in (("focal", 0.6, (0, 1)), ("diffusion", 0.4, (0, 1)), ("diffusion_fco", 0.45, (0, 1)),
+                                ("focal_pc", 0.75, (0,))):  # point clouds: one seed so far
         for task in grid["tasks"]:
-            for seed in (0, 1):
+            for seed in seeds:
                 curve = [{"step": 500 * (i + 1), "success": base + 0.01 * i, "atv": 0.1, "length": 100}
                          for i in range(16)]
                 results.append({"key": f"{task}|{method}|{seed}", "status": "ok", "task": task, "method": method,
@@ -176,6 +177,13 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
     assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+    # Point clouds beside low-dim focal on the seeds both have (seed 0: 0.75 − 0.6), and against the paper.
+    assert "| FocalPolicy (512-pt cloud) − FocalPolicy: the paper's 512-point cloud" in module
+    goals = report[report.index("## Goals"):]
+    assert "FocalPolicy (512-pt cloud) beside low-dim focal (top-5, paired over 2 task-seed pairs, seeds 0): " \
+           "+15.0 points, 95 % interval [+15.0, +15.0]; point clouds better / level / worse in 2/0/0" in goals
+    assert "on pick-place: 75.0 vs the paper's 70.7 (+4.3)" in goals
+    assert "focal ≥ FocalPolicy (512-pt cloud)" not in goals  # an input, not an ablation to beat
     assert "## Diagnostics" not in report  # none written yet: no section
     (tmp_path / "variant_nfe4.md").write_text("x")
     (tmp_path / "tau_profile.md").write_text("x")
