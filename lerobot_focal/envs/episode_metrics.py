@@ -41,6 +41,7 @@ class EpisodeMetrics:
     def finish(self, is_success: bool) -> dict:
         import json
         import logging
+        import time
 
         record = {
             "task": self.task,
@@ -48,6 +49,9 @@ class EpisodeMetrics:
             "success": bool(is_success),
             "length": len(self.actions),
             "action_total_variation": action_total_variation(self.actions),
+            # Wall-clock end (Unix seconds): when an interrupted grid run resumes, it says how long the kept
+            # part of the run took.
+            "ended_at": round(time.time(), 3),
         }
         self.finished.append(record)
         logging.info(

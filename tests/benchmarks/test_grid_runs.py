@@ -167,6 +167,47 @@ def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
     assert record["status"] == "ok" and record["key"] == "reach|wo_las|0"
 
 
+def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, tmp_path):
+    """SIGINT once the run's first evaluation is written: the rerun continues with LeRobot's own resume from the
+    checkpoint saved at the newest completed evaluation, keeps the evaluations already done, and finishes."""
+    out = tmp_path / "out"
+    steps = 10  # five evaluations: the interruption lands well before the end
+    args = [*TINY_ARGS[:1], str(steps), *TINY_ARGS[2:]]
+    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *args, "--methods", "focal",
+           "--out", str(out), "--work", str(work)]
+    run_dir = (work / "runs" / PRESETS["cpu"].with_overrides(**{**TINY, "steps": steps}).runs_folder / "reach" /
+               "focal" / "seed0")
+    episodes = run_dir / "eval_episodes.jsonl"
+
+    def seeded() -> list[dict]:
+        lines = episodes.read_text().splitlines() if episodes.exists() else []
+        return [r for r in (json.loads(x) for x in lines if x.endswith("}")) if r["seed"] is not None]
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.time() + 300
+    while len(seeded()) < 2:  # the first evaluation (2 episodes) is complete
+        assert proc.poll() is None and time.time() < deadline, "the run ended or stalled before its first evaluation"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert _children_left(work) == []
+    first_evaluation = seeded()[:2]
+
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
+    (record,) = ResultsFile(out / "results.jsonl").records()
+    assert record["status"] == "ok" and [c["step"] for c in record["curve"]] == [2, 4, 6, 8, 10]
+    (resumed_at,) = record["resumed_from_steps"]
+    assert resumed_at in (2, 4, 6, 8) and record["lost_s"] >= 0 and len(record["spans"]) == 2
+    assert seeded()[:2] == first_evaluation and len(seeded()) == 10  # kept, then the rest, nothing twice
+    log = (run_dir / "train.log").read_text()
+    assert "--resume=true" in log and "Resuming data order" in log  # LeRobot's own resume, mid-epoch
+    assert f"resumed from step {resumed_at}" in (work / "attempts.log").read_text()
+    ckpts = sorted(p.name for p in (run_dir / "train" / "checkpoints").iterdir())
+    assert ckpts == ["000010", "last"]  # only the final checkpoint is kept
+
+
 def test_interrupted_parallel_grid_starts_none_of_its_queued_runs(work, tmp_path):
     """With --jobs 2 and four runs, Ctrl-C while two train: both are stopped, and the two queued runs are not
     started on the way out (worker threads freed by the stop used to pick them up before the pool shut down)."""

@@ -285,6 +285,10 @@ def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocation
     ]
     assert elapsed_s(records) == 30 * 60 + 15 * 60
     assert elapsed_s([]) == 0.0
+    # A run interrupted at 12:10 and resumed next day counts its two spans, not the night between.
+    resumed = {"started_at": "2026-01-02T09:00:00", "finished_at": "2026-01-02T09:30:00",
+               "spans": [["2026-01-01T12:00:00", "2026-01-01T12:10:00"], ["2026-01-02T09:00:00", "2026-01-02T09:30:00"]]}
+    assert elapsed_s([*records, resumed]) == 30 * 60 + 15 * 60 + 10 * 60 + 30 * 60
 
 
 def test_variant_table_pairs_success_and_atv_and_keeps_run_keys_out_of_the_column_separators():

@@ -3,7 +3,7 @@
 Both executors hand every finished run to ``on_result`` as soon as it ends (the grid appends it to the
 results file), retry a failed run ``retries`` times, and report a run that still fails as a failure record
 instead of stopping the grid. Interrupting the driver keeps every result already written; the runs in flight
-are lost and run again next time.
+continue next time from their newest usable checkpoint (``resume``).
 """
 
 from __future__ import annotations

@@ -6,8 +6,10 @@ order with :func:`stop_all`; once it has, no new child starts and every caller g
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -45,8 +47,23 @@ def _reap(proc: subprocess.Popen) -> None:
         proc.kill()
 
 
-def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str) -> None:
-    """Run `cmd` with its output appended to `log`; RunFailed (with the log's tail) if it exits non-zero."""
+def _wait(proc: subprocess.Popen, poll: Callable[[], None] | None, every_s: float) -> int:
+    while True:
+        try:
+            return proc.wait(timeout=every_s if poll else None)
+        except subprocess.TimeoutExpired:
+            try:
+                poll()
+            except OSError as err:
+                logging.warning("housekeeping beside pid %d failed (the run goes on): %s", proc.pid, err)
+
+
+def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str,
+               poll: Callable[[], None] | None = None, poll_every_s: float = 20.0) -> None:
+    """Run `cmd` with its output appended to `log`; RunFailed (with the log's tail) if it exits non-zero.
+
+    ``poll`` is called every ``poll_every_s`` seconds while the child runs (housekeeping such as pruning old
+    checkpoints); an OSError it raises is logged, never fatal to the run."""
     refuse_if_stopping()
     with open(log, "ab") as f:
         f.write(f"\n$ {' '.join(cmd)}\n".encode())
@@ -54,7 +71,7 @@ def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str) -> Non
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         _RUNNING.add(proc)
         try:
-            rc = proc.wait()
+            rc = _wait(proc, poll, poll_every_s)
         except BaseException:  # Ctrl-C in a single-job driver lands here: the child is in its own session
             proc.terminate()
             _reap(proc)

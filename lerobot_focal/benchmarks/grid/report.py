@@ -209,9 +209,12 @@ def elapsed_s(records: list[dict]) -> float:
     """Seconds during which at least one run of the grid was going: the union of the runs' intervals, so runs
     that overlapped (``--jobs`` > 1) count once and the gaps between grid invocations not at all. A record
     without ``started_at`` (written before it was recorded) starts its training and final evaluation before it
-    finished."""
+    finished. A run resumed after an interruption counts the spans it kept (``spans``), not the time between."""
     spans = []
     for r in records:
+        if "spans" in r:
+            spans += [(datetime.fromisoformat(a), datetime.fromisoformat(b)) for a, b in r["spans"]]
+            continue
         if "finished_at" not in r:
             continue
         end = datetime.fromisoformat(r["finished_at"])

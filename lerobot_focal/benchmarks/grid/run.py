@@ -9,6 +9,7 @@ A run is a plain function of a picklable ``RunSpec`` so the local executor and R
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import shutil
@@ -25,6 +26,7 @@ from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
+from .resume import earlier_segments, find_resume_point, prepare_resume, prune_checkpoints, resume_command, start_segment
 from .revisit import checkpoint_of
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
@@ -106,7 +108,7 @@ def train_command(spec: RunSpec) -> list[str]:
         f"--steps={p.steps}",
         f"--batch_size={p.batch_size}",
         "--num_workers=0",
-        f"--save_freq={p.steps}",
+        f"--save_freq={p.eval_every}",  # a checkpoint at every evaluation: an interrupted run resumes (resume.py)
         f"--log_freq={max(p.eval_every // 2, 1)}",
         "--wandb.enable=false",
         # LeRobot's own periodic evaluation, in the plugin's env (same seeds at every evaluation of a run).
@@ -127,22 +129,37 @@ def child_env(preset: GridPreset) -> dict[str, str]:
 
 
 def run_one(spec: RunSpec) -> dict:
-    """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed."""
+    """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed.
+
+    A run interrupted earlier continues from its newest usable checkpoint (see ``resume``), else starts over."""
     refuse_if_stopping()  # before anything is deleted, logged or collected
     out = spec.run_dir
-    if out.exists():
-        shutil.rmtree(out)  # an interrupted earlier attempt: start it over (lerobot-train needs a new dir)
-    out.mkdir(parents=True)
-    started_at = time.strftime("%Y-%m-%dT%H:%M:%S")
-    with open(spec.work / "attempts.log", "a") as f:  # every start of every run, kept across retries
-        f.write(f"{started_at} {spec.key} pid={os.getpid()}\n")
-    env = child_env(spec.preset)
     p = spec.preset
+    command = train_command(spec)
+    point = find_resume_point(out, command, p.eval_every, p.eval_episodes) if out.exists() else None
+    if point is not None:
+        prepare_resume(out, point)
+    else:
+        if out.exists():
+            shutil.rmtree(out)  # an interrupted attempt with nothing to continue from: start it over
+        out.mkdir(parents=True)
+    started_at = time.strftime("%Y-%m-%dT%H:%M:%S")
+    resumed_note = f" resumed from step {point.step}" if point else ""
+    with open(spec.work / "attempts.log", "a") as f:  # every start of every run, kept across retries
+        f.write(f"{started_at} {spec.key} pid={os.getpid()}{resumed_note}\n")
+    if point:
+        logging.info("%s: continuing from its checkpoint at step %d of %d", spec.key, point.step, p.steps)
+    env = child_env(p)
     collect_task_data(spec.data, p, None if spec.obs_type == p.obs_type else spec.obs_type, spec.work / "logs")
 
+    start_segment(out, command, point.step if point else 0)
     t0 = time.perf_counter()
-    run_logged(train_command(spec), out / "train.log", env, "lerobot-train")
-    wall_s = time.perf_counter() - t0
+    if point is None or point.step < p.steps:  # else only the final evaluation and the analysis were left
+        run_logged(command if point is None else resume_command(command[0], point), out / "train.log", env,
+                   "lerobot-train", poll=lambda: prune_checkpoints(out, keep=2))
+    prune_checkpoints(out, keep=1)
+    kept_s, spans, lost_s, resumed_from = earlier_segments(out)
+    wall_s = kept_s + time.perf_counter() - t0
 
     episodes = [json.loads(line) for line in (out / "eval_episodes.jsonl").read_text().splitlines() if line]
     curve = eval_curve(episodes, p.eval_episodes, p.eval_every)
@@ -154,6 +171,8 @@ def run_one(spec: RunSpec) -> dict:
     final: dict = {}
     if p.final_episodes:
         t1 = time.perf_counter()
+        for stale in (out / "final_episodes.jsonl", out / "final_eval"):  # of an interrupted final evaluation
+            shutil.rmtree(stale) if stale.is_dir() else stale.unlink(missing_ok=True)
         run_logged(final_eval_command(spec, checkpoint), out / "final_eval.log", env, "final lerobot-eval")
         fresh = [json.loads(x) for x in (out / "final_episodes.jsonl").read_text().splitlines() if x]
         fresh = [e for e in fresh if e.get("seed") is not None]
@@ -190,7 +209,9 @@ def run_one(spec: RunSpec) -> dict:
         "wall_s": wall_s,
         "run_dir": str(out),
         "started_at": started_at,
-        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "finished_at": (finished_at := time.strftime("%Y-%m-%dT%H:%M:%S")),
+        **({"resumed_from_steps": resumed_from, "lost_s": lost_s, "spans": [*spans, [started_at, finished_at]]}
+           if resumed_from else {}),
     }
 
 
