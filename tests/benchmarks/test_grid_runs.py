@@ -167,45 +167,75 @@ def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
     assert record["status"] == "ok" and record["key"] == "reach|wo_las|0"
 
 
-def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, tmp_path):
-    """SIGINT once the run's first evaluation is written: the rerun continues with LeRobot's own resume from the
-    checkpoint saved at the newest completed evaluation, keeps the evaluations already done, and finishes."""
-    out = tmp_path / "out"
-    steps = 10  # five evaluations: the interruption lands well before the end
+def _grid_of_one_run(work: Path, out: Path, steps: int, method: str) -> tuple[list[str], Path]:
+    """The driver command of a one-run grid (reach, `method`, seed 0, `steps` steps, an evaluation every 2) and
+    that run's folder."""
     args = [*TINY_ARGS[:1], str(steps), *TINY_ARGS[2:]]
-    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *args, "--methods", "focal",
+    cmd = [sys.executable, "-m", "lerobot_focal.benchmarks.grid.driver", *args, "--methods", method,
            "--out", str(out), "--work", str(work)]
-    run_dir = (work / "runs" / PRESETS["cpu"].with_overrides(**{**TINY, "steps": steps}).runs_folder / "reach" /
-               "focal" / "seed0")
-    episodes = run_dir / "eval_episodes.jsonl"
+    folder = PRESETS["cpu"].with_overrides(**{**TINY, "steps": steps}).runs_folder
+    return cmd, work / "runs" / folder / "reach" / method / "seed0"
 
-    def seeded() -> list[dict]:
-        lines = episodes.read_text().splitlines() if episodes.exists() else []
-        return [r for r in (json.loads(x) for x in lines if x.endswith("}")) if r["seed"] is not None]
 
+def _seeded_episodes(run_dir: Path) -> list[dict]:
+    path = run_dir / "eval_episodes.jsonl"
+    lines = path.read_text().splitlines() if path.exists() else []
+    return [r for r in (json.loads(x) for x in lines if x.endswith("}")) if r["seed"] is not None]
+
+
+def _interrupt_after_first_evaluation(cmd: list[str], run_dir: Path) -> None:
+    """Start the driver, send SIGINT as soon as the run's first evaluation (2 episodes) is written."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.time() + 300
-    while len(seeded()) < 2:  # the first evaluation (2 episodes) is complete
+    while len(_seeded_episodes(run_dir)) < 2:
         assert proc.poll() is None and time.time() < deadline, "the run ended or stalled before its first evaluation"
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     output, _ = proc.communicate(timeout=120)
     assert proc.returncode == 130, output
+
+
+def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, tmp_path):
+    """SIGINT once the run's first evaluation is written: the rerun continues with LeRobot's own resume from the
+    checkpoint saved at the newest completed evaluation, keeps the evaluations already done, and finishes."""
+    cmd, run_dir = _grid_of_one_run(work, tmp_path / "out", steps=10, method="focal")  # 5 evaluations
+    _interrupt_after_first_evaluation(cmd, run_dir)
     assert _children_left(work) == []
-    first_evaluation = seeded()[:2]
+    first_evaluation = _seeded_episodes(run_dir)[:2]
 
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
-    (record,) = ResultsFile(out / "results.jsonl").records()
+    (record,) = ResultsFile(tmp_path / "out" / "results.jsonl").records()
     assert record["status"] == "ok" and [c["step"] for c in record["curve"]] == [2, 4, 6, 8, 10]
     (resumed_at,) = record["resumed_from_steps"]
     assert resumed_at in (2, 4, 6, 8) and record["lost_s"] >= 0 and len(record["spans"]) == 2
-    assert seeded()[:2] == first_evaluation and len(seeded()) == 10  # kept, then the rest, nothing twice
+    seeded = _seeded_episodes(run_dir)
+    assert seeded[:2] == first_evaluation and len(seeded) == 10  # kept, then the rest, nothing twice
     log = (run_dir / "train.log").read_text()
     assert "--resume=true" in log and "Resuming data order" in log  # LeRobot's own resume, mid-epoch
     assert f"resumed from step {resumed_at}" in (work / "attempts.log").read_text()
     ckpts = sorted(p.name for p in (run_dir / "train" / "checkpoints").iterdir())
     assert ckpts == ["000010", "last"]  # only the final checkpoint is kept
+
+
+def test_a_resume_that_fails_is_not_tried_again_and_the_run_starts_over(work, tmp_path):
+    """A checkpoint LeRobot cannot resume from (its saved configuration broken here) fails that attempt; the
+    retry starts the run over instead of failing the same way, and the run still finishes."""
+    cmd, run_dir = _grid_of_one_run(work, tmp_path / "out", steps=6, method="wo_fco_las")
+    _interrupt_after_first_evaluation(cmd, run_dir)
+    for config in (run_dir / "train" / "checkpoints").glob("*/pretrained_model/train_config.json"):
+        config.write_text("{not json")
+    key = "reach|wo_fco_las|0"
+    before = [line for line in (work / "attempts.log").read_text().splitlines() if key in line]
+
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
+    (record,) = ResultsFile(tmp_path / "out" / "results.jsonl").records()
+    assert record["status"] == "ok" and "resumed_from_steps" not in record
+    assert [c["step"] for c in record["curve"]] == [2, 4, 6]
+    starts = [line for line in (work / "attempts.log").read_text().splitlines() if key in line][len(before):]
+    assert len(starts) == 2 and "resumed from step" in starts[0] and "resumed" not in starts[1]
+    assert "the next attempt starts the run over" in rerun.stdout + rerun.stderr
 
 
 def test_interrupted_parallel_grid_starts_none_of_its_queued_runs(work, tmp_path):

@@ -64,6 +64,11 @@ def start_segment(run_dir: Path, command: list[str], from_step: int) -> None:
     (run_dir / SEGMENTS_FILE).write_text(json.dumps(segments, indent=1))
 
 
+def forget_resume(run_dir: Path) -> None:
+    """Make the run start over next time (its resume failed, so resuming again would fail the same way)."""
+    (run_dir / SEGMENTS_FILE).unlink(missing_ok=True)
+
+
 def _episode_lines(path: Path) -> list[tuple[str, dict]]:
     """(line, record) of every whole line; a line torn by the interruption is dropped."""
     out = []

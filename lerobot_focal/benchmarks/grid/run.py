@@ -26,7 +26,15 @@ from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
-from .resume import earlier_segments, find_resume_point, prepare_resume, prune_checkpoints, resume_command, start_segment
+from .resume import (
+    earlier_segments,
+    find_resume_point,
+    forget_resume,
+    prepare_resume,
+    prune_checkpoints,
+    resume_command,
+    start_segment,
+)
 from .revisit import checkpoint_of
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
@@ -155,8 +163,15 @@ def run_one(spec: RunSpec) -> dict:
     start_segment(out, command, point.step if point else 0)
     t0 = time.perf_counter()
     if point is None or point.step < p.steps:  # else only the final evaluation and the analysis were left
-        run_logged(command if point is None else resume_command(command[0], point), out / "train.log", env,
-                   "lerobot-train", poll=lambda: prune_checkpoints(out, keep=2))
+        try:
+            run_logged(command if point is None else resume_command(command[0], point), out / "train.log", env,
+                       "lerobot-train", poll=lambda: prune_checkpoints(out, keep=2))
+        except RunFailed as err:
+            if point is not None:  # a resume that fails is not tried again: the next attempt starts over
+                forget_resume(out)
+                raise RunFailed(f"resuming from step {point.step} failed (the next attempt starts the run over): "
+                                f"{err}") from err
+            raise
     prune_checkpoints(out, keep=1)
     kept_s, spans, lost_s, resumed_from = earlier_segments(out)
     wall_s = kept_s + time.perf_counter() - t0
