@@ -214,6 +214,8 @@ def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, t
     log = (run_dir / "train.log").read_text()
     assert "--resume=true" in log and "Resuming data order" in log  # LeRobot's own resume, mid-epoch
     assert f"resumed from step {resumed_at}" in (work / "attempts.log").read_text()
+    said = rerun.stdout + rerun.stderr  # each evaluation's result as it lands, the kept ones not again
+    assert "reach|focal|0: evaluation 5/5 (step 10)" in said and "evaluation 1/5" not in said
     ckpts = sorted(p.name for p in (run_dir / "train" / "checkpoints").iterdir())
     assert ckpts == ["000010", "last"]  # only the final checkpoint is kept
 

@@ -121,7 +121,8 @@ def _stop_on_signals() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    # force: an import on the way (LeRobot's) has already set up the root logger at WARNING, which hid these lines
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", force=True)
     _stop_on_signals()
     args = parse_args(argv)
     specs, grid = build_specs(args)

@@ -80,6 +80,11 @@ def _episode_lines(path: Path) -> list[tuple[str, dict]]:
     return out
 
 
+def seeded_episodes(run_dir: Path) -> list[dict]:
+    """The run's periodic-evaluation episodes so far (autoreset episodes, which carry no seed, left out)."""
+    return [rec for _, rec in _episode_lines(run_dir / EPISODES_FILE) if rec.get("seed") is not None]
+
+
 @dataclass(frozen=True)
 class ResumePoint:
     step: int  # the checkpoint's training step; the evaluations up to and including it are kept
@@ -98,7 +103,7 @@ def find_resume_point(run_dir: Path, command: list[str], eval_every: int, episod
     segments = read_segments(run_dir)
     if not segments or segments[0]["command"] != command:
         return None
-    seeded = [rec for _, rec in _episode_lines(run_dir / EPISODES_FILE) if rec.get("seed") is not None]
+    seeded = seeded_episodes(run_dir)
     completed_step = len(seeded) // episodes_per_eval * eval_every
     found = checkpoints(run_dir)
     usable = [s for s, path in found.items() if 0 < s <= completed_step and s % eval_every == 0

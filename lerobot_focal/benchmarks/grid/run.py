@@ -15,6 +15,7 @@ import re
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from .resume import (
     prepare_resume,
     prune_checkpoints,
     resume_command,
+    seeded_episodes,
     start_segment,
 )
 from .revisit import checkpoint_of
@@ -136,6 +138,25 @@ def child_env(preset: GridPreset) -> dict[str, str]:
     return env
 
 
+def _evaluation_progress(spec: RunSpec) -> Callable[[], None]:
+    """A callable that logs each periodic evaluation the run completed since its last call: a run takes up to
+    an hour on a CPU, and this is how its progress shows in the grid's output."""
+    p = spec.preset
+    total = p.steps // p.eval_every
+    shown = len(seeded_episodes(spec.run_dir)) // p.eval_episodes
+
+    def report() -> None:
+        nonlocal shown
+        episodes = seeded_episodes(spec.run_dir)
+        for i in range(shown, len(episodes) // p.eval_episodes):
+            block = episodes[i * p.eval_episodes : (i + 1) * p.eval_episodes]
+            logging.info("%s: evaluation %d/%d (step %d): %.0f %% success", spec.key, i + 1, total,
+                         (i + 1) * p.eval_every, 100 * sum(e["success"] for e in block) / len(block))
+            shown = i + 1
+
+    return report
+
+
 def run_one(spec: RunSpec) -> dict:
     """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed.
 
@@ -163,15 +184,22 @@ def run_one(spec: RunSpec) -> dict:
     start_segment(out, command, point.step if point else 0)
     t0 = time.perf_counter()
     if point is None or point.step < p.steps:  # else only the final evaluation and the analysis were left
+        progress = _evaluation_progress(spec)
+
+        def housekeeping() -> None:
+            progress()
+            prune_checkpoints(out, keep=2)
+
         try:
             run_logged(command if point is None else resume_command(command[0], point), out / "train.log", env,
-                       "lerobot-train", poll=lambda: prune_checkpoints(out, keep=2))
+                       "lerobot-train", poll=housekeeping)
         except RunFailed as err:
             if point is not None:  # a resume that fails is not tried again: the next attempt starts over
                 forget_resume(out)
                 raise RunFailed(f"resuming from step {point.step} failed (the next attempt starts the run over): "
                                 f"{err}") from err
             raise
+        progress()  # the evaluations since the last poll
     prune_checkpoints(out, keep=1)
     kept_s, spans, lost_s, resumed_from = earlier_segments(out)
     wall_s = kept_s + time.perf_counter() - t0
