@@ -220,6 +220,7 @@ def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, t
     assert ckpts == ["000010", "last"]  # only the final checkpoint is kept
 
 
+@pytest.mark.slow  # a second interrupted run (~1.5 min); the default suite has the resume that works
 def test_a_resume_that_fails_is_not_tried_again_and_the_run_starts_over(work, tmp_path):
     """A checkpoint LeRobot cannot resume from (its saved configuration broken here) fails that attempt; the
     retry starts the run over instead of failing the same way, and the run still finishes."""
