@@ -54,7 +54,7 @@ def _wait(proc: subprocess.Popen, poll: Callable[[], None] | None, every_s: floa
         except subprocess.TimeoutExpired:
             try:
                 poll()
-            except OSError as err:
+            except Exception as err:  # noqa: BLE001 - housekeeping must never stop the run it looks after
                 logging.warning("housekeeping beside pid %d failed (the run goes on): %s", proc.pid, err)
 
 
@@ -63,7 +63,7 @@ def run_logged(cmd: list[str], log: Path, env: dict[str, str], what: str,
     """Run `cmd` with its output appended to `log`; RunFailed (with the log's tail) if it exits non-zero.
 
     ``poll`` is called every ``poll_every_s`` seconds while the child runs (housekeeping such as pruning old
-    checkpoints); an OSError it raises is logged, never fatal to the run."""
+    checkpoints, logging progress); an error it raises is logged, never fatal to the run."""
     refuse_if_stopping()
     with open(log, "ab") as f:
         f.write(f"\n$ {' '.join(cmd)}\n".encode())
