@@ -83,3 +83,19 @@ def test_pruning_keeps_the_newest_checkpoints(tmp_path):
     assert sorted(checkpoints(run)) == [6, 8]
     prune_checkpoints(run, keep=1)
     assert sorted(checkpoints(run)) == [8] and (run / "train" / "checkpoints" / "last").resolve().name == "000008"
+
+
+def test_housekeeping_runs_beside_the_child_and_its_errors_do_not_stop_it(tmp_path):
+    import sys
+
+    from lerobot_focal.benchmarks.grid.processes import run_logged
+
+    calls = []
+
+    def poll() -> None:
+        calls.append(1)
+        raise ValueError("a housekeeping bug")
+
+    run_logged([sys.executable, "-c", "import time; time.sleep(1.0); print('done')"], tmp_path / "child.log",
+               {}, "child", poll=poll, poll_every_s=0.1)
+    assert len(calls) >= 3 and "done" in (tmp_path / "child.log").read_text()
