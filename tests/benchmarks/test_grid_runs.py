@@ -202,12 +202,15 @@ def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, t
     _interrupt_after_first_evaluation(cmd, run_dir)
     assert _children_left(work) == []
     first_evaluation = _seeded_episodes(run_dir)[:2]
+    listed = subprocess.run([*cmd, "--dry-run"], capture_output=True, text=True, timeout=300).stdout
+    assert "1 of them continue from a checkpoint: reach|focal|0 at step " in listed, listed
 
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
     (record,) = ResultsFile(tmp_path / "out" / "results.jsonl").records()
     assert record["status"] == "ok" and [c["step"] for c in record["curve"]] == [2, 4, 6, 8, 10]
     (resumed_at,) = record["resumed_from_steps"]
+    assert f"reach|focal|0 at step {resumed_at}\n" in listed  # where --dry-run said it would continue
     assert resumed_at in (2, 4, 6, 8) and record["lost_s"] >= 0 and len(record["spans"]) == 2
     seeded = _seeded_episodes(run_dir)
     assert seeded[:2] == first_evaluation and len(seeded) == 10  # kept, then the rest, nothing twice

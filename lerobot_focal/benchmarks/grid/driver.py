@@ -21,7 +21,7 @@ from pathlib import Path
 from .methods import resolve_method_phases
 from .presets import PRESETS
 from .results import ResultsFile
-from .run import RunSpec
+from .run import RunSpec, resumable_step
 
 DEV_TASKS = "pick-place,sweep-into,disassemble,push-wall,basketball"
 
@@ -135,9 +135,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"[grid] preset {grid['preset']['name']}: {grid['preset']['notes']}")
     if grid["overrides"]:
         print("[grid] overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()))
+    resumable = {s.key: step for s in todo if (step := resumable_step(s)) is not None}
+    if resumable:
+        print(f"[grid] {len(resumable)} of them continue from a checkpoint: "
+              + ", ".join(f"{k} at step {v}" for k, v in resumable.items()))
     if args.dry_run:
         for s in todo:
-            print("  ", s.key)
+            print("  ", s.key + (f" (continues from step {resumable[s.key]})" if s.key in resumable else ""))
         return 0
     (args.out / "grid.json").write_text(__import__("json").dumps(grid, indent=2, default=str))
 

@@ -157,6 +157,13 @@ def _evaluation_progress(spec: RunSpec) -> Callable[[], None]:
     return report
 
 
+def resumable_step(spec: RunSpec) -> int | None:
+    """The step an interrupted run would continue from, None if it would start over (or never started)."""
+    p = spec.preset
+    point = find_resume_point(spec.run_dir, train_command(spec), p.eval_every, p.eval_episodes)
+    return point.step if point else None
+
+
 def run_one(spec: RunSpec) -> dict:
     """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed.
 
