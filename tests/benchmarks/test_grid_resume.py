@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 from lerobot_focal.benchmarks.grid.resume import (
@@ -17,6 +18,7 @@ from lerobot_focal.benchmarks.grid.resume import (
 )
 
 CMD = ["lerobot-train", "--steps=8"]
+START = time.time() - 600.0
 
 
 def _run_dir(tmp_path: Path, ckpt_steps: list[int], evals_done: int, torn: bool = False) -> Path:
@@ -28,7 +30,11 @@ def _run_dir(tmp_path: Path, ckpt_steps: list[int], evals_done: int, torn: bool 
         state.mkdir(parents=True)
         (state / "training_step.json").write_text(json.dumps({"step": step}))
     (run / "train" / "checkpoints" / "last").symlink_to(f"{max(ckpt_steps):06d}")
-    lines, t = [], 1000.0
+    start_segment(run, CMD, 0)
+    segments = read_segments(run)
+    segments[0]["start_s"] = START  # as if training had started at START, each episode ending 1 s after the last
+    (run / "segments.json").write_text(json.dumps(segments))
+    lines, t = [], START
     for e in range(evals_done):
         for k in range(2):
             t += 1
@@ -37,7 +43,6 @@ def _run_dir(tmp_path: Path, ckpt_steps: list[int], evals_done: int, torn: bool 
     lines.append({"seed": 0, "success": True, "ended_at": t + 50})  # the evaluation that was cut short
     text = "".join(json.dumps(x) + "\n" for x in lines) + ('{"seed": 1, "succ' if torn else "")
     (run / "eval_episodes.jsonl").write_text(text)
-    start_segment(run, CMD, 0)
     return run
 
 
@@ -46,7 +51,7 @@ def test_resumes_from_the_newest_checkpoint_whose_evaluation_completed(tmp_path)
     run = _run_dir(tmp_path, [2, 4, 6], evals_done=2, torn=True)
     point = find_resume_point(run, CMD, eval_every=2, episodes_per_eval=2)
     assert point is not None and point.step == 4 and point.episodes_kept == 4
-    assert point.kept_until == 1004.0  # the end of the last kept episode, as the env recorded it
+    assert point.kept_until == START + 4  # the end of the last kept episode, as the env recorded it
     assert point.config_path == run / "train" / "checkpoints" / "000004" / "pretrained_model" / "train_config.json"
 
     prepare_resume(run, point)
@@ -55,12 +60,20 @@ def test_resumes_from_the_newest_checkpoint_whose_evaluation_completed(tmp_path)
     assert sorted(checkpoints(run)) == [2, 4]  # the checkpoint after the resume point is deleted
     assert (run / "train" / "checkpoints" / "last").resolve().name == "000004"
     (segment,) = read_segments(run)
-    assert segment["kept_step"] == 4 and segment["lost_s"] > 0  # the files were written after t = 1004
+    assert segment["kept_step"] == 4 and segment["lost_s"] > 500  # the files were written ~600 s after START
 
     start_segment(run, CMD, 4)
     kept_s, spans, lost_s, resumed = earlier_segments(run)
     assert resumed == [4] and len(spans) == 1 and lost_s == segment["lost_s"]
-    assert kept_s == 1004.0 - segment["start_s"]
+    assert kept_s == 4.0
+
+    # Interrupted again before its next evaluation: the same point; that second segment kept nothing.
+    again = find_resume_point(run, CMD, eval_every=2, episodes_per_eval=2)
+    assert again.step == 4
+    prepare_resume(run, again)
+    start_segment(run, CMD, 4)
+    kept_s2, spans2, lost_s2, resumed2 = earlier_segments(run)
+    assert resumed2 == [4, 4] and kept_s2 == kept_s and spans2 == spans and lost_s2 >= lost_s
 
 
 def test_starts_over_without_a_usable_checkpoint_or_with_another_command(tmp_path):

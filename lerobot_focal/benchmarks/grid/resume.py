@@ -135,8 +135,9 @@ def prepare_resume(run_dir: Path, point: ResumePoint) -> None:
         last.unlink()
     last.symlink_to(point.checkpoint.name)  # relative, as LeRobot writes it
     segments = read_segments(run_dir)
-    segments[-1].update(kept_step=point.step, kept_until_s=point.kept_until,
-                        lost_s=max(0.0, lost_until - point.kept_until))
+    # A segment interrupted before its first evaluation kept nothing: its kept span ends where it started.
+    kept_until = max(point.kept_until, segments[-1]["start_s"])
+    segments[-1].update(kept_step=point.step, kept_until_s=kept_until, lost_s=max(0.0, lost_until - kept_until))
     (run_dir / SEGMENTS_FILE).write_text(json.dumps(segments, indent=1))
 
 
@@ -151,7 +152,8 @@ def earlier_segments(run_dir: Path) -> tuple[float, list[list[str]], float, list
     kept_s, spans, lost_s, resumed = 0.0, [], 0.0, []
     for seg in read_segments(run_dir)[:-1]:
         kept_s += seg["kept_until_s"] - seg["start_s"]
-        spans.append([seg["started_at"], iso(seg["kept_until_s"])])
+        if seg["kept_until_s"] > seg["start_s"]:
+            spans.append([seg["started_at"], iso(seg["kept_until_s"])])
         lost_s += seg["lost_s"]
         resumed.append(seg["kept_step"])
     return kept_s, spans, lost_s, resumed
