@@ -164,7 +164,8 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
                                 "seed": seed, "success_top_k": base + seed * 0.1, "success_final": base,
                                 "success_fresh": base - 0.1, "fresh_episodes": 50, "atv": 0.1, "curve": curve,
                                 "compounding_curve": [0.1, 0.2], "compounding_error": 0.2, "ts_score": 0.1,
-                                "latency_ms": 2.0, "nfe": 1.0, "wall_s": 600.0, "update_s_per_step": 0.06})
+                                "latency_ms": 2.0, "nfe": 1.0, "wall_s": 600.0, "update_s_per_step": 0.06,
+                                **({"resumed_from_steps": [4000], "lost_s": 90.0} if method == "focal_pc" else {})})
     report = write_report(tmp_path).read_text()
     summary = json.loads((tmp_path / "summary.json").read_text())["methods"]
     entry = summary["focal"]["pick-place"]
@@ -177,6 +178,7 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
     assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+    assert "2 of the runs continued from a checkpoint after an interruption (LeRobot's resume; 3.0 min" in report
     # Point clouds beside low-dim focal on the seeds both have (seed 0: 0.75 − 0.6), and against the paper.
     assert "| FocalPolicy (512-pt cloud) − FocalPolicy: the paper's 512-point cloud" in module
     goals = report[report.index("## Goals"):]

@@ -254,6 +254,11 @@ def write_report(out_dir: Path) -> Path:
            "`--jobs` > 1; other work shared the machine)"
            + (f"; {todo} runs of the grid are still to do (rerun the grid command to continue)." if todo > 0 else ".")
            , ""]
+    resumed = [r for r in records if r.get("resumed_from_steps")]
+    if resumed:
+        md += [f"{len(resumed)} of the runs continued from a checkpoint after an interruption (LeRobot's resume; "
+               f"{sum(r.get('lost_s', 0.0) for r in resumed) / 60:.1f} min of work after their checkpoints was "
+               "redone and is not counted above); their records list the steps they resumed from.", ""]
     if grid.get("overrides"):
         md += ["Overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()), ""]
     md += [f"{len(records)} runs: tasks {', '.join(tasks)}; seeds {', '.join(map(str, grid['seeds']))}. "
