@@ -5,6 +5,7 @@
     lerobot-focal-bench grid  --preset cpu|paper --tasks ... --methods ... --out DIR   (the paper's protocol)
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
+    lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
     lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
                                                         (lerobot-rollout on the UR-10e twin: stage latencies)
@@ -38,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
                                                  "(see `lerobot-focal-bench grid --help`)")
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
+    sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
     sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
                                                    "and loop rate (see `lerobot-focal-bench rollout --help`)")
@@ -65,6 +67,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.rollout_latency import main as rollout_main
 
         return rollout_main(argv[1:])
+    if argv[:1] == ["allocator"]:
+        from lerobot_focal.benchmarks.allocator import main as allocator_main
+
+        return allocator_main(argv[1:])
     if argv[:1] == ["train-step"]:
         from lerobot_focal.benchmarks.train_step import main as train_step_main
 
