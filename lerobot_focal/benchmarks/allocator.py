@@ -2,13 +2,15 @@
 
     lerobot-focal-bench allocator [--inputs pointcloud state] [--rounds 3] [--steps 8] [--out docs/benchmarks]
 
-Why: a point-cloud step allocates 64 MB activations, above glibc's largest mmap threshold (32 MB), so by default
-each one is mapped, page-faulted in zero-filled and unmapped at every step. Allocator settings are fixed when a
-process starts, so each setting runs in its own child process, the two alternated for ``--rounds`` rounds (load
-from other processes hits both alike); each child times ``--steps`` steps after two warm-up steps of the grid's
-focal (U-Net 32/64/128, batch 64, one thread: forward with the EMA target, backward, clip, fused AdamW, EMA
-update) from fixed weights and data, and reports its final loss and a checksum of its weights, which must match
-bit for bit between the settings. Writes ``allocator_cpu.json`` and ``allocator_cpu.md``.
+Why: a point-cloud step allocates activations of up to 64 MB, at or above glibc's largest mmap threshold
+(32 MB), so by default each one is mapped, page-faulted in zero-filled and unmapped at every step.
+
+Allocator settings are fixed when a process starts, so each setting runs in its own child process, the two
+alternated for ``--rounds`` rounds (load from other processes hits both alike). Each child times ``--steps``
+steps, after two warm-up steps, of the grid's focal (U-Net 32/64/128, batch 64, one thread: forward with the EMA
+target, backward, clip, fused AdamW, EMA update) from fixed weights and data, and reports its final loss and a
+checksum of its weights, which must match bit for bit between the settings. Writes ``allocator_cpu.json`` and
+``allocator_cpu.md``.
 """
 
 from __future__ import annotations

@@ -132,9 +132,9 @@ def train_command(spec: RunSpec) -> list[str]:
 
 #: glibc malloc settings for a run's processes: serve every allocation from the heap and keep freed memory for
 #: reuse, instead of mapping (and page-faulting in, zero-filled) each large tensor anew. The point-cloud
-#: encoder's activations are 64 MB per layer at batch 64 (2 frames × 512 points × 256 channels), above glibc's
-#: largest mmap threshold (32 MB), so by default every training step maps and unmaps them: a focal step on
-#: point clouds takes 2× as long, with bit-identical losses and weights either way (see docs/benchmarks.md).
+#: encoder's activations are up to 64 MB a layer at batch 64 (2 frames × 512 points × 256 channels), at or above
+#: glibc's largest mmap threshold (32 MB), so by default every training step maps and unmaps them: a focal step
+#: on point clouds takes 2× as long, with bit-identical losses and weights either way (see docs/benchmarks.md).
 #: A value already in the environment wins.
 MALLOC_ENV: dict[str, str] = {"MALLOC_MMAP_MAX_": "0", "MALLOC_TRIM_THRESHOLD_": str(4 << 30)}
 
