@@ -221,8 +221,7 @@ def run_one(spec: RunSpec) -> dict:
     kept_s, spans, lost_s, resumed_from = earlier_segments(out)
     wall_s = kept_s + time.perf_counter() - t0
 
-    episodes = [json.loads(line) for line in (out / "eval_episodes.jsonl").read_text().splitlines() if line]
-    curve = eval_curve(episodes, p.eval_episodes, p.eval_every)
+    curve = eval_curve(seeded_episodes(out), p.eval_episodes, p.eval_every)
     if len(curve) != p.steps // p.eval_every:
         raise RunFailed(f"expected {p.steps // p.eval_every} evaluations, found {len(curve)} in {out}")
     updates = [float(x) for x in UPDATE_RE.findall((out / "train.log").read_text(errors="replace"))]
