@@ -10,6 +10,7 @@ MetaWorld's ``_freeze_rand_vec``): overriding them is what keeps the rest LeRobo
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from lerobot_focal.sim.rendering import ensure_offscreen_gl
@@ -42,11 +43,36 @@ from .features import (
 )
 from .focal_metaworld import (
     DEFAULT_WORKSPACE_HIGH,
+    DEFAULT_TABLE_CLEARANCE,
     DEFAULT_WORKSPACE_LOW,
     DP3_CORNER2_POS,
     METAWORLD_ENV_STATE_DIM,
     METAWORLD_STATE_DIM,
 )
+
+
+def table_top(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    """World z of the task's table top: the highest face of the visible boxes of MetaWorld's ``tablelink``
+    body. Read from the model because it differs between tasks (sweep-into's table, holed at the goal, is
+    5 cm higher than the common one)."""
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "tablelink")
+    if body < 0:
+        raise ValueError("this MetaWorld scene has no 'tablelink' body; pass table_clearance=None")
+    tops = [
+        data.geom_xpos[g][2] + np.abs(data.geom_xmat[g].reshape(3, 3)[2]) @ model.geom_size[g]
+        for g in range(model.ngeom)
+        if model.geom_bodyid[g] == body and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX
+        and model.geom_group[g] < 3  # rendered geoms only; groups 3-5 are collision proxies
+    ]
+    if not tops:
+        raise ValueError("MetaWorld's 'tablelink' body has no visible box; pass table_clearance=None")
+    return float(max(tops))
+
+
+def above_table(spec: PointCloudSpec, top: float, clearance: float) -> PointCloudSpec:
+    """``spec`` with its box's lower z raised to ``clearance`` above the table top (never lowered)."""
+    low = (*spec.bounds.low[:2], max(spec.bounds.low[2], top + clearance))
+    return replace(spec, bounds=WorkspaceBounds(low, spec.bounds.high))
 
 
 class FocalMetaworldEnv(MetaworldEnv):
@@ -76,6 +102,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         cheap_rendering: bool = True,
         env_state: bool = False,
         render_videos: bool = True,
+        table_clearance: float | None = DEFAULT_TABLE_CLEARANCE,
     ) -> None:
         check_obs_type(obs_type)
         # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
@@ -96,6 +123,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         self.pointcloud_spec = PointCloudSpec(
             num_points=num_points, bounds=WorkspaceBounds(workspace_low, workspace_high), voxel_size=voxel_size
         )
+        self.table_clearance = table_clearance
         self.depth_size = (depth_height, depth_width)
         self.raycast_threads = raycast_threads
         self._pc_sensor: RayCastPointCloudSensor | None = None
@@ -142,6 +170,9 @@ class FocalMetaworldEnv(MetaworldEnv):
         env.seeded_rand_vec = True  # reset(seed=X) controls object positions
         self._env = env
         if uses_pointcloud(self.obs_type):
+            if self.table_clearance is not None:
+                self.pointcloud_spec = above_table(self.pointcloud_spec, table_top(env.model, env.data),
+                                                   self.table_clearance)
             self._pc_sensor = RayCastPointCloudSensor(
                 env.model,
                 self.camera_name,

@@ -98,6 +98,34 @@ def test_metaworld_seed_controls_object_positions():
         env.close()
 
 
+@pytest.mark.parametrize("task, top", [("pick-place", 0.0), ("sweep-into", 0.05)])
+def test_metaworld_cloud_crops_the_table_away_and_keeps_the_object(task, top):
+    """The table top (5 cm higher in sweep-into) and its rim are cropped out of the cloud, as DP3 does: kept,
+    farthest-point sampling spent most of the 512 points on them and left the object a handful."""
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+    from lerobot_focal.envs.metaworld_env import table_top
+
+    def cloud(**kwargs):
+        env = FocalMetaworldEnvConfig(task=task, obs_type="pointcloud", **kwargs).make_single_env()
+        try:
+            obs, _ = env.reset(seed=3)
+            obj = env.last_raw_obs[4:7]  # MetaWorld's own object position
+            return obs["pointcloud"], np.linalg.norm(obs["pointcloud"] - obj, axis=1), table_top(
+                env._env.model, env._env.data)
+        finally:
+            env.close()
+
+    points, to_object, measured_top = cloud()
+    assert measured_top == pytest.approx(top, abs=1e-6)
+    assert points[:, 2].min() >= top + 0.005
+    assert (to_object < 0.04).sum() >= 10
+    # The old box (table and rim inside): the table plane holds a large share and the object only a few points.
+    kept, kept_to_object, _ = cloud(table_clearance=None, workspace_low=(-0.6, 0.2, -0.02),
+                                    workspace_high=(0.6, 1.05, 0.75))
+    assert (np.abs(kept[:, 2] - top) < 0.003).sum() > 100
+    assert (kept_to_object < 0.04).sum() < (to_object < 0.04).sum() / 2
+
+
 def test_metaworld_expert_success_terminates_with_metrics(tmp_path):
     """The scripted expert solves reach; the env reports success, terminates and logs ATV."""
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig

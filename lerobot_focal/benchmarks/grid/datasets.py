@@ -26,6 +26,10 @@ from .processes import run_logged
 #: training configurations into every evaluation. The demos start far above them.
 DEMO_SEED = 1_000
 HELDOUT_SEED = 100_000
+#: Names the envs' point-cloud recipe in the folder of cached point-cloud demos. Change it with the recipe (crop
+#: box, table crop, point count), so that demos cached by an earlier version are never trained on beside clouds
+#: from today's evaluation env. "tablefree": the table top and its rim are cropped away.
+CLOUD_RECIPE = "tablefree"
 
 
 @dataclass(frozen=True)
@@ -49,7 +53,7 @@ def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = 
     obs_type = obs_type or preset.obs_type
     base = work / "data" / preset.data_folder / task
     if obs_type != preset.obs_type:
-        base = base / obs_type
+        base = base / (f"{obs_type}-{CLOUD_RECIPE}" if obs_type == "pointcloud" else obs_type)
     return TaskData(task, base / "train", f"local/{task}_train", base / "heldout", f"local/{task}_heldout")
 
 
