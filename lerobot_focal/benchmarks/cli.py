@@ -7,6 +7,7 @@
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
+    lerobot-focal-bench cloud-content [--tasks ...]     (what a MetaWorld cloud's points fall on: table, arm, objects)
     lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
                                                         (lerobot-rollout on the UR-10e twin: stage latencies)
 """
@@ -40,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
+    sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "
+                                                         "and the task's objects, env crop vs the previous box")
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
     sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
                                                    "and loop rate (see `lerobot-focal-bench rollout --help`)")
@@ -67,6 +70,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.rollout_latency import main as rollout_main
 
         return rollout_main(argv[1:])
+    if argv[:1] == ["cloud-content"]:
+        from lerobot_focal.benchmarks.cloud_content import main as cloud_content_main
+
+        return cloud_content_main(argv[1:])
     if argv[:1] == ["allocator"]:
         from lerobot_focal.benchmarks.allocator import main as allocator_main
 
