@@ -24,6 +24,19 @@ def gl_depth(renderer: mujoco.Renderer, model, data, camera: str) -> np.ndarray:
     return np.where(depth < 0.999 * far, depth, 0.0)  # far plane = no return, as the ray caster reports it
 
 
+def silhouette_pixels(depth: np.ndarray, jump: float = 0.05) -> np.ndarray:
+    """Pixels whose depth differs from a 4-neighbour's by more than ``jump`` (m), a miss next to a hit included."""
+    edge = np.zeros(depth.shape, bool)
+    for axis in (0, 1):
+        step = np.abs(np.diff(depth, axis=axis)) > jump
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (0, 1)
+        edge |= np.pad(step, pad)
+        pad[axis] = (1, 0)
+        edge |= np.pad(step, pad)
+    return edge
+
+
 def compare(env, steps: int, seed: int) -> dict:
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
@@ -45,10 +58,16 @@ def compare(env, steps: int, seed: int) -> dict:
     cloud_ray = sensor(data)
     cloud_gl = depth_to_pointcloud(gl, cam.intrinsics, cam.pose(data).matrix(), sensor.spec)
     nn = np.concatenate([cKDTree(cloud_gl).query(cloud_ray)[0], cKDTree(cloud_ray).query(cloud_gl)[0]])
-    # Every ray-cast cloud point should lie on the surface OpenGL drew: distance to the dense GL points.
-    gl_surface = crop_to_workspace(backproject_depth(gl, cam.intrinsics, cam.pose(data).matrix()), sensor.spec.bounds)
+    # Every ray-cast point should lie on the surface OpenGL drew: distance to the dense GL points. Silhouette
+    # pixels are left out of the surface gap: there rasterisation and a ray through the pixel centre may see
+    # different surfaces, and a ray grazing a curved edge lands centimetres along it from where the
+    # neighbouring pixel's ray hit. Such grazing hits are isolated points, which farthest-point sampling picks
+    # first: with the table cropped away they are ~5 % of an arm-dominated cloud.
+    pose = cam.pose(data).matrix()
+    gl_surface = crop_to_workspace(backproject_depth(gl, cam.intrinsics, pose), sensor.spec.bounds)
     on_surface = cKDTree(gl_surface).query(cloud_ray)[0]
-    ray_surface = crop_to_workspace(backproject_depth(ray, cam.intrinsics, cam.pose(data).matrix()), sensor.spec.bounds)
+    interior = np.where(silhouette_pixels(ray), 0.0, ray)
+    ray_surface = crop_to_workspace(backproject_depth(interior, cam.intrinsics, pose), sensor.spec.bounds)
     surface_gap = cKDTree(gl_surface).query(ray_surface)[0]
     return {
         "pixels": int(ray.size),
