@@ -60,7 +60,7 @@ def measure(
 ) -> tuple[float, float, int]:
     """Median observations/s (wall clock) and CPU ms per observation over ``runs`` passes of ``frames``
     distinct states; also the mean number of rays mj_multiRay cast per frame."""
-    env = FocalMetaworldEnv(task=task, obs_type="state")
+    env = FocalMetaworldEnv(task=task, obs_type="pointcloud")  # its crop box: the table cropped per task
     env._ensure_env()
     spec = PointCloudSpec(num_points=512, bounds=env.pointcloud_spec.bounds, voxel_size=voxel_size)
     sensor = RayCastPointCloudSensor(env._env.model, env.camera_name, spec, 128, 128, num_threads=threads)
