@@ -6,7 +6,8 @@ Farthest-point sampling spreads its points evenly over whatever the crop box kee
 the box takes points in proportion to its extent, not to its use: a table top a metre wide outbids a 4 cm puck.
 This compares the env's crop (the table top and its rim cropped away) with the box the project used before,
 which kept both. Each point is attributed to the body its ray hit (the ray-cast sensor's per-pixel geom ids,
-the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}``.
+the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}`` and a picture of one cloud
+under each crop, ``cloud_content_example.png``.
 """
 
 from __future__ import annotations
@@ -40,8 +41,9 @@ def _categories(model) -> np.ndarray:
     return out
 
 
-def cloud_content(task: str, seed: int, **crop) -> dict[str, float]:
-    """Share of the cloud's points on each category, and points within 4 cm of MetaWorld's object position."""
+def attributed_cloud(task: str, seed: int, **crop) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The env's cloud after ``reset(seed)``, each point's category index, and which points lie within 4 cm of
+    MetaWorld's own object position."""
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 
     env = FocalMetaworldEnvConfig(task=task, obs_type="pointcloud", render_videos=False, **crop).make_single_env()
@@ -62,6 +64,12 @@ def cloud_content(task: str, seed: int, **crop) -> dict[str, float]:
         near_object = np.linalg.norm(cloud - env.last_raw_obs[4:7], axis=1) < 0.04
     finally:
         env.close()
+    return cloud, category, near_object
+
+
+def cloud_content(task: str, seed: int, **crop) -> dict[str, float]:
+    """Share of the cloud's points on each category, and points within 4 cm of MetaWorld's object position."""
+    _, category, near_object = attributed_cloud(task, seed, **crop)
     shares = {name: float((category == i).mean()) for i, name in enumerate(CATEGORIES)}
     return {**shares, "points_near_object": int(near_object.sum())}
 
@@ -102,6 +110,35 @@ def _plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _plot_example(task: str, path: Path) -> None:
+    """One cloud of ``task`` (reset seed 0) seen from the side, under each crop, coloured by what it fell on."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(10, 4.5))
+    for i, (name, crop) in enumerate((("previous box", PREVIOUS_BOX), ("env default", {}))):
+        cloud, category, _ = attributed_cloud(task, 0, **crop)
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        for c, colour in enumerate(("0.6", "tab:blue", "tab:orange")):
+            pts = cloud[category == c]
+            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=4, color=colour, label=f"{CATEGORIES[c]} ({len(pts)})")
+        ax.set_title(f"{task}, {name}", fontsize=9)
+        ax.view_init(elev=25, azim=-60)
+        lo, hi = PREVIOUS_BOX["workspace_low"], PREVIOUS_BOX["workspace_high"]
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_zlim(lo[2], hi[2])
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        ax.set_zlabel("z")
+        ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lerobot-focal-bench cloud-content", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -127,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
               + f" | {r['points_near_object']:.0f} |" for r in rows]
     (args.out / "cloud_content.md").write_text("\n".join(lines) + "\n")
     _plot(rows, args.out / "cloud_content.png")
-    print(f"wrote {args.out}/cloud_content.md, .json, .png")
+    _plot_example(args.tasks[0], args.out / "cloud_content_example.png")
+    print(f"wrote {args.out}/cloud_content.md, .json, .png and cloud_content_example.png")
     return 0
 
 

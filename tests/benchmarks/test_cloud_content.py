@@ -19,3 +19,4 @@ def test_cloud_content_attributes_points_and_shows_the_table_crop(tmp_path):
     assert now["arm"] > before["arm"] and now["points_near_object"] > before["points_near_object"]
     assert "| pick-place | env default | 0 % |" in (tmp_path / "cloud_content.md").read_text()
     assert (tmp_path / "cloud_content.png").stat().st_size > 1000
+    assert (tmp_path / "cloud_content_example.png").stat().st_size > 1000
