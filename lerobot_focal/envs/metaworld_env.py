@@ -42,8 +42,8 @@ from .features import (
     uses_state,
 )
 from .focal_metaworld import (
-    DEFAULT_WORKSPACE_HIGH,
     DEFAULT_TABLE_CLEARANCE,
+    DEFAULT_WORKSPACE_HIGH,
     DEFAULT_WORKSPACE_LOW,
     DP3_CORNER2_POS,
     METAWORLD_ENV_STATE_DIM,
