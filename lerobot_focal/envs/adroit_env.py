@@ -14,7 +14,7 @@ import numpy as np
 from gymnasium import spaces
 
 from lerobot_focal.geometry.pointcloud import PointCloudSpec, WorkspaceBounds
-from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
+from lerobot_focal.sim.raycast_camera import RENDERED_SITE_GROUPS, RayCastPointCloudSensor
 from lerobot_focal.sim.rendering import make_rendering_cheap
 
 from .episode_metrics import EpisodeMetrics
@@ -69,6 +69,7 @@ class FocalAdroitEnv(gym.Env):
         raycast_threads: int | None = None,
         metrics_path: str | None = None,
         cheap_rendering: bool = True,
+        draw_sites: bool = True,
     ) -> None:
         super().__init__()
         if task not in ADROIT_TASKS:
@@ -76,6 +77,7 @@ class FocalAdroitEnv(gym.Env):
         check_obs_type(obs_type)
         self.metrics = EpisodeMetrics(task, metrics_path)
         self.cheap_rendering = cheap_rendering
+        self.draw_sites = draw_sites
         self._viewer_ready = False
         self.last_raw_obs: np.ndarray | None = None
         self.task = task
@@ -132,6 +134,7 @@ class FocalAdroitEnv(gym.Env):
                 width=self._depth_size[1],
                 height=self._depth_size[0],
                 num_threads=self.raycast_threads,
+                site_groups=RENDERED_SITE_GROUPS if self.draw_sites else None,
             )
 
     def _obs(self) -> dict[str, np.ndarray]:

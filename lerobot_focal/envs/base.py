@@ -42,6 +42,9 @@ class FocalSimEnvConfig(EnvConfig):
     metrics_path: str | None = None
     # Shadows and reflections off in RGB frames: ~8x faster with software OpenGL (pixels obs and eval videos).
     cheap_rendering: bool = True
+    # Clouds contain the sites an OpenGL render draws (MetaWorld's goal marker, the arm's small site spheres),
+    # as DP3's clouds, made from rasterised depth, do. False: matter only, as a real depth camera sees it.
+    draw_sites: bool = True
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=env_features_map)
 
@@ -49,7 +52,7 @@ class FocalSimEnvConfig(EnvConfig):
     GYM_FIELDS: ClassVar[tuple[str, ...]] = (
         "obs_type", "episode_length", "camera_name", "observation_width", "observation_height", "num_points",
         "depth_width", "depth_height", "workspace_low", "workspace_high", "voxel_size", "raycast_threads",
-        "metrics_path", "cheap_rendering",
+        "metrics_path", "cheap_rendering", "draw_sites",
     )
     #: A suite's own extra keyword arguments.
     EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ()

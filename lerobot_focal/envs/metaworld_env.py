@@ -26,7 +26,7 @@ from gymnasium import spaces
 from lerobot.envs.metaworld import MetaworldEnv
 
 from lerobot_focal.geometry.pointcloud import PointCloudSpec, WorkspaceBounds
-from lerobot_focal.sim.raycast_camera import RayCastPointCloudSensor
+from lerobot_focal.sim.raycast_camera import RENDERED_SITE_GROUPS, RayCastPointCloudSensor
 from lerobot_focal.sim.rendering import make_rendering_cheap
 
 from .episode_metrics import EpisodeMetrics
@@ -100,6 +100,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         visualization_height: int = 480,
         metrics_path: str | None = None,
         cheap_rendering: bool = True,
+        draw_sites: bool = True,
         env_state: bool = False,
         render_videos: bool = True,
         table_clearance: float | None = DEFAULT_TABLE_CLEARANCE,
@@ -129,6 +130,7 @@ class FocalMetaworldEnv(MetaworldEnv):
         self._pc_sensor: RayCastPointCloudSensor | None = None
         self.metrics = EpisodeMetrics(self.task, metrics_path)
         self.cheap_rendering = cheap_rendering
+        self.draw_sites = draw_sites
         self.render_videos = render_videos
         self._viewer_ready = False
         self.last_raw_obs: np.ndarray | None = None  # MetaWorld's 39-d observation, what its experts read
@@ -180,6 +182,7 @@ class FocalMetaworldEnv(MetaworldEnv):
                 width=self.depth_size[1],
                 height=self.depth_size[0],
                 num_threads=self.raycast_threads,
+                site_groups=RENDERED_SITE_GROUPS if self.draw_sites else None,
             )
 
     def agent_pos(self) -> np.ndarray:

@@ -34,6 +34,8 @@ from lerobot_focal.geometry.pointcloud import PinholeIntrinsics, PointCloudSpec,
 
 #: MuJoCo's default ``mjvOption.geomgroup``: what an OpenGL render of the scene shows.
 RENDERED_GEOM_GROUPS: tuple[int, ...] = (1, 1, 1, 0, 0, 0)
+#: MuJoCo's default ``mjvOption.sitegroup``: the sites an OpenGL render draws.
+RENDERED_SITE_GROUPS: tuple[int, ...] = (1, 1, 1, 0, 0, 0)
 # Where static geoms are moved in the per-frame scratch data: beyond any cutoff, so mj_multiRay skips them.
 _PARKED = 1e9
 # Corners of the cube [-1, 1]^3, scaled by a bounding-sphere radius to bound a geom.
@@ -60,6 +62,44 @@ def mujoco_camera_pose(model: mujoco.MjModel, data: mujoco.MjData, camera_id: in
     """Pose of a named MuJoCo camera after ``mj_forward``, converted to the OpenCV convention."""
     rotation = data.cam_xmat[camera_id].reshape(3, 3) @ _CV_FROM_MJ
     return CameraPose(position=data.cam_xpos[camera_id].copy(), rotation=rotation)
+
+
+def drawn_sphere_sites(model: mujoco.MjModel, site_groups: tuple[int, ...]) -> np.ndarray:
+    """Ids of the sphere sites OpenGL draws: in an enabled group and not fully transparent.
+
+    Sites are markers, not matter: mj_ray ignores them and a real depth camera never sees them, but a
+    rasterised depth image (what DP3's MetaWorld clouds are made from) contains every drawn site, MetaWorld's
+    goal marker included. Only spheres are supported (MetaWorld's sites all are); other shapes are left out.
+    """
+    if len(site_groups) != mujoco.mjNGROUP:
+        raise ValueError(f"site_groups needs {mujoco.mjNGROUP} flags, got {len(site_groups)}")
+    enabled = np.asarray(site_groups, dtype=bool)[np.clip(model.site_group, 0, mujoco.mjNGROUP - 1)]
+    alpha = model.site_rgba[:, 3].copy()
+    material = model.site_matid >= 0
+    alpha[material] = model.mat_rgba[model.site_matid[material], 3]
+    sphere = model.site_type == mujoco.mjtGeom.mjGEOM_SPHERE
+    return np.flatnonzero(enabled & (alpha > 0) & sphere)
+
+
+def _sphere_hits(
+    origin: np.ndarray, rays: np.ndarray, centres: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest entry of each ray ``origin + t * ray`` (t > 0) into any of the spheres: (t, sphere index), with
+    (inf, -1) for rays that miss them all. t is in units of the ray vector, so z-depth for camera rays."""
+    best = np.full(rays.shape[0], np.inf)
+    which = np.full(rays.shape[0], -1, dtype=np.int64)
+    a = np.einsum("ij,ij->i", rays, rays)
+    for k, (centre, radius) in enumerate(zip(centres, radii, strict=True)):
+        oc = origin - centre
+        b = rays @ oc
+        disc = b * b - a * (oc @ oc - radius * radius)
+        with np.errstate(invalid="ignore"):
+            t = (-b - np.sqrt(disc)) / a
+        t = np.where((disc >= 0) & (t > 0), t, np.inf)
+        closer = t < best
+        best = np.where(closer, t, best)
+        which = np.where(closer, k, which)
+    return best, which
 
 
 def _segment_hits_box(
@@ -97,6 +137,7 @@ class RayCastDepthCamera:
         skip_outside: WorkspaceBounds | None = None,
         geom_groups: tuple[int, ...] = RENDERED_GEOM_GROUPS,
         num_threads: int | None = None,
+        site_groups: tuple[int, ...] | None = None,
     ) -> None:
         camera_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
         if camera_id < 0:
@@ -128,8 +169,12 @@ class RayCastDepthCamera:
         self._world_rays: np.ndarray = np.zeros((0, 3))
         self._static_full: np.ndarray = np.zeros(0)
         self._static_gid: np.ndarray = np.zeros(0, dtype=np.int32)
-        #: Geom id seen by each pixel of the last frame (-1: nothing within max_depth); for colour shading.
+        #: Geom id seen by each pixel of the last frame (-1: nothing within max_depth, or a site); for colour
+        #: shading.
         self.last_geom_ids: np.ndarray = np.zeros((0, 0), dtype=np.int32)
+        #: Site id seen by each pixel of the last frame (-1: none), when sites are drawn (``site_groups``).
+        self.last_site_ids: np.ndarray = np.zeros((0, 0), dtype=np.int32)
+        self._sites = drawn_sphere_sites(model, site_groups) if site_groups is not None else np.arange(0)
 
     @property
     def width(self) -> int:
@@ -254,8 +299,18 @@ class RayCastDepthCamera:
             closer = (geomid >= 0) & (dist < full[chunk])
             full[chunk] = np.where(closer, dist, full[chunk])
             gid[chunk] = np.where(closer, geomid, gid[chunk])
+        sid = np.full(full.shape, -1, dtype=np.int32)
+        if self._sites.size:
+            active = self._active
+            dist, hit = _sphere_hits(origin, self._world_rays[active], data.site_xpos[self._sites],
+                                     self.model.site_size[self._sites, 0])
+            closer = (hit >= 0) & (dist < full[active])
+            full[active] = np.where(closer, dist, full[active])
+            sid[active] = np.where(closer, self._sites[np.maximum(hit, 0)], -1)
+            gid[active] = np.where(closer, -1, gid[active])
         seen = full <= self.max_depth
         self.last_geom_ids = np.where(seen, gid, -1).reshape(self.height, self.width)
+        self.last_site_ids = np.where(seen, sid, -1).reshape(self.height, self.width)
         return np.where(seen, full, 0.0).astype(np.float32).reshape(self.height, self.width)
 
     @property
@@ -287,11 +342,12 @@ class RayCastPointCloudSensor:
         height: int = 128,
         max_depth: float = 10.0,
         num_threads: int | None = None,
+        site_groups: tuple[int, ...] | None = None,
     ) -> None:
         self.spec = spec
         self.camera = RayCastDepthCamera(
             model, camera, width=width, height=height, max_depth=min(max_depth, spec.max_depth),
-            skip_outside=spec.bounds, num_threads=num_threads,
+            skip_outside=spec.bounds, num_threads=num_threads, site_groups=site_groups,
         )
 
     def __call__(self, data: mujoco.MjData) -> np.ndarray:

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
 from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 from lerobot_focal.geometry.pointcloud import backproject_depth, crop_to_workspace, depth_to_pointcloud
-from lerobot_focal.sim.raycast_camera import RayCastDepthCamera
+from lerobot_focal.sim.raycast_camera import RENDERED_SITE_GROUPS, RayCastDepthCamera
 
 
 def gl_depth(renderer: mujoco.Renderer, model, data, camera: str) -> np.ndarray:
@@ -47,7 +47,8 @@ def compare(env, steps: int, seed: int) -> dict:
     sensor = env._pc_sensor
     cam: RayCastDepthCamera = sensor.camera
     # Full frame, no workspace skipping, so every pixel is compared.
-    full = RayCastDepthCamera(model, env.camera_name, cam.width, cam.height, skip_outside=None, num_threads=1)
+    full = RayCastDepthCamera(model, env.camera_name, cam.width, cam.height, skip_outside=None, num_threads=1,
+                              site_groups=RENDERED_SITE_GROUPS)  # OpenGL draws sites too
     ray = full.render(data)
     renderer = mujoco.Renderer(model, cam.height, cam.width)
     renderer.enable_depth_rendering()
