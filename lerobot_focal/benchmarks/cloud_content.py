@@ -4,9 +4,10 @@
 
 Farthest-point sampling spreads its points evenly over whatever the crop box keeps, so static scenery inside
 the box takes points in proportion to its extent, not to its use: a table top a metre wide outbids a 4 cm puck.
+Drawn sites count as what they are attached to: MetaWorld's goal marker (on the world body) as a task object.
 This compares the env's crop (the table top and its rim cropped away) with the box the project used before,
-which kept both. Each point is attributed to the body its ray hit (the ray-cast sensor's per-pixel geom ids,
-the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}`` and a picture of one cloud
+which kept both. Each point is attributed to the body its ray hit (the ray-cast sensor's per-pixel geom and
+site ids, at the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}`` and a picture of one cloud
 under each crop, ``cloud_content_example.png``.
 """
 
@@ -53,14 +54,16 @@ def attributed_cloud(task: str, seed: int, **crop) -> tuple[np.ndarray, np.ndarr
         model, data = env._env.model, env._env.data
         camera = env._pc_sensor.camera
         depth = camera.render(data).ravel()  # the frame the cloud was made from (same state, same rays)
-        geoms = camera.last_geom_ids.ravel()
+        # the body each pixel's ray hit: a geom's, or a drawn site's (MetaWorld's goal marker is on the world body)
+        sites, geoms = camera.last_site_ids.ravel(), camera.last_geom_ids.ravel()
+        bodies = np.where(sites >= 0, model.site_bodyid[np.maximum(sites, 0)], model.geom_bodyid[np.maximum(geoms, 0)])
         pose = camera.pose(data).matrix()
         points = (camera.intrinsics.pixel_rays() * depth[:, None]) @ pose[:3, :3].T + pose[:3, 3]
         bounds = env.pointcloud_spec.bounds
         seen = (depth > 0) & np.all((points >= bounds.low) & (points <= bounds.high), axis=1)
-        points, geoms = points[seen], geoms[seen]
+        points, bodies = points[seen], bodies[seen]
         nearest = np.array([int(np.argmin(((points - p) ** 2).sum(1))) for p in cloud])
-        category = _categories(model)[model.geom_bodyid[geoms[nearest]]]
+        category = _categories(model)[bodies[nearest]]
         near_object = np.linalg.norm(cloud - env.last_raw_obs[4:7], axis=1) < 0.04
     finally:
         env.close()

@@ -222,6 +222,11 @@ class FocalMetaworldEnv(MetaworldEnv):
         obs: dict[str, Any] = {}
         if uses_state(self.obs_type):
             obs[AGENT_POS_KEY] = self.agent_pos()
+        if uses_pointcloud(self.obs_type) or uses_pixels(self.obs_type):
+            # Draw the state as it is now. MetaWorld's reset moves the goal site (model.site_pos) after its last
+            # forward pass, so without this the first frame of an episode drew the goal marker where it was
+            # before the reset; after a step it brings the poses from the last substep's start to its end.
+            mujoco.mj_kinematics(self._env.model, self._env.data)
         if uses_pointcloud(self.obs_type):
             obs[POINTCLOUD_KEY] = self.pointcloud()
         if uses_pixels(self.obs_type):

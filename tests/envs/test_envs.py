@@ -126,6 +126,27 @@ def test_metaworld_cloud_crops_the_table_away_and_keeps_the_object(task, top):
     assert (kept_to_object < 0.04).sum() < (to_object < 0.04).sum() / 2
 
 
+@pytest.mark.parametrize("task", ["pick-place", "push-wall"])
+def test_metaworld_cloud_shows_the_goal_marker_as_opengl_draws_it(task):
+    """MetaWorld's goal is a drawn site, in DP3's rasterised clouds: ours hold it too (draw_sites, the default),
+    or not, as a real depth camera would see the scene (draw_sites=false)."""
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    def near_goal(draw_sites):
+        env = FocalMetaworldEnvConfig(task=task, obs_type="pointcloud", draw_sites=draw_sites).make_single_env()
+        try:
+            first, _ = env.reset(seed=3)  # the goal is drawn where it is from the first frame on
+            counts = [int((np.linalg.norm(first["pointcloud"] - env.last_raw_obs[-3:], axis=1) < 0.03).sum())]
+            obs, *_ = env.step(np.zeros(4, np.float32))
+            counts.append(int((np.linalg.norm(obs["pointcloud"] - env.last_raw_obs[-3:], axis=1) < 0.03).sum()))
+            return min(counts)
+        finally:
+            env.close()
+
+    assert near_goal(True) >= 3
+    assert near_goal(False) == 0
+
+
 def test_metaworld_expert_success_terminates_with_metrics(tmp_path):
     """The scripted expert solves reach; the env reports success, terminates and logs ATV."""
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig

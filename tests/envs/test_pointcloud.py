@@ -173,3 +173,36 @@ def test_raycast_matches_osmesa_render():
         assert row["cloud_nn_mean"] <= 0.02, row
         assert row["cloud_unique_points"] == 512, row
 
+
+
+def test_raycast_draws_sphere_sites_only_when_asked():
+    """With ``site_groups`` the ray caster sees the sites OpenGL draws (enabled group, not transparent) at the
+    right depth; without it, as a real depth camera, only matter."""
+    import mujoco
+
+    from lerobot_focal.sim.raycast_camera import RENDERED_SITE_GROUPS, RayCastDepthCamera
+
+    xml = """
+    <mujoco>
+      <worldbody>
+        <camera name="top" pos="0 0 2" xyaxes="1 0 0 0 1 0"/>
+        <geom name="floor" type="box" size="1 1 0.01"/>
+        <site name="marker" type="sphere" size="0.1" pos="0 0 1" rgba="0 1 0 1"/>
+        <site name="hidden" type="sphere" size="0.1" pos="0.3 0 1" rgba="0 1 0 0"/>
+        <site name="collision_group" type="sphere" size="0.1" pos="-0.3 0 1" group="4"/>
+      </worldbody>
+    </mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    drawn = RayCastDepthCamera(model, "top", width=65, height=65, site_groups=RENDERED_SITE_GROUPS)
+    plain = RayCastDepthCamera(model, "top", width=65, height=65)
+    with_sites, without = drawn.render(data), plain.render(data)
+    assert with_sites[32, 32] == pytest.approx(2.0 - 1.1, abs=1e-6)  # the marker's near pole
+    assert drawn.last_site_ids[32, 32] == mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "marker")
+    assert drawn.last_geom_ids[32, 32] == -1
+    assert without[32, 32] == pytest.approx(2.0 - 0.01, abs=1e-6)  # the floor
+    # the transparent and the group-4 sites are not drawn: only the marker's pixels differ
+    differ = np.abs(with_sites - without) > 1e-6
+    assert differ.any() and set(np.unique(drawn.last_site_ids[differ])) == {0}
+    assert (drawn.last_site_ids >= 0).sum() == differ.sum()
