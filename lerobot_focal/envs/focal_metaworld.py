@@ -25,7 +25,7 @@ DP3_CORNER2_POS: tuple[float, float, float] = (0.6, 0.295, 0.8)
 #: y = 0.22, back at 0.98, sides at |x| = 0.68): drops floor, rim, back walls and background. Static scenery
 #: carries nothing a policy can use, and farthest-point sampling spreads the 512 points over it evenly: with
 #: the rim and the table top inside the box they took 79-87 % of the points and left 4-5 within 4 cm of the
-#: object, against 12-37 without them (`lerobot-focal-bench cloud-content`, five tasks).
+#: object, against 12-36 without them (`lerobot-focal-bench cloud-content`, five tasks).
 DEFAULT_WORKSPACE_LOW: tuple[float, float, float] = (-0.6, 0.23, -0.02)
 DEFAULT_WORKSPACE_HIGH: tuple[float, float, float] = (0.6, 0.97, 0.75)
 #: Points closer than this (m) above the table top are cropped away, as DP3 crops the table out of its clouds.
