@@ -9,6 +9,8 @@ the tricks below, a whole 512-point cloud in about 28 ms on one core of a 2-core
   returns hit distances in units of the direction vector, so the result *is* the z-depth (no division);
 * only geom groups 0-2 are cast against, the groups MuJoCo renders by default, so collision-only geoms
   (groups 3-5) are neither paid for nor mistaken for surfaces;
+* sites are markers that ``mj_ray`` ignores; with ``site_groups`` the drawn sphere sites are intersected
+  analytically, as an OpenGL render shows them (the sim envs do, so that clouds match DP3's rasterised ones);
 * with workspace bounds given, pixels whose ray segment cannot enter the box are never cast: whatever such
   a ray hits would be cropped away anyway, so skipping them is exact, not an approximation;
 * static geoms (table, walls, fixtures) are ray-cast once per camera pose with exact single-ray ``mj_ray``
