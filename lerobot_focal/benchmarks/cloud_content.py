@@ -7,8 +7,8 @@ the box takes points in proportion to its extent, not to its use: a table top a 
 Drawn sites count as what they are attached to: MetaWorld's goal marker (on the world body) as a task object.
 This compares the env's crop (the table top and its rim cropped away) with the box the project used before,
 which kept both. Each point is attributed to the body its ray hit (the ray-cast sensor's per-pixel geom and
-site ids, at the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}`` and a picture of one cloud
-under each crop, ``cloud_content_example.png``.
+site ids, at the point's nearest back-projected pixel). Writes ``cloud_content.{md,json,png}`` and a picture
+of one cloud under each crop, ``cloud_content_example.png``.
 """
 
 from __future__ import annotations
