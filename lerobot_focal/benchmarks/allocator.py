@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from lerobot_focal.console import doc_parser
+
 SETTINGS = ("glibc defaults", "MALLOC_ENV (grid)")
 
 
@@ -118,8 +120,7 @@ def run(inputs: list[str], rounds: int, steps: int, batch: int, out: Path) -> di
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="lerobot-focal-bench allocator", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-bench allocator")
     p.add_argument("--inputs", nargs="+", choices=["pointcloud", "state"], default=["pointcloud", "state"])
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--steps", type=int, default=8)

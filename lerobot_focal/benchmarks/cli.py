@@ -14,13 +14,13 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
+
+from lerobot_focal.console import doc_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="lerobot-focal-bench", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "lerobot-focal-bench")
     sub = parser.add_subparsers(dest="command", required=True)
     speed = sub.add_parser("speed", help="inference latency and train-step cost: focal vs bare U-Net vs diffusion")
     speed.add_argument("--sizes", nargs="+", choices=["cpu", "paper"], default=["cpu", "paper"])

@@ -13,11 +13,13 @@ of one cloud under each crop, ``cloud_content_example.png``.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
+
+from lerobot_focal.console import doc_parser
+from lerobot_focal.figures import save_png
 
 #: The crop box the MetaWorld env used before the table crop: table top and rim inside.
 PREVIOUS_BOX = {"workspace_low": (-0.6, 0.2, -0.02), "workspace_high": (0.6, 1.05, 0.75), "table_clearance": None}
@@ -108,9 +110,7 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.set_title("What a MetaWorld cloud's points fall on")
     ax.tick_params(axis="x", labelsize=7)
     ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 def _plot_example(task: str, path: Path) -> None:
@@ -137,14 +137,11 @@ def _plot_example(task: str, path: Path) -> None:
         ax.set_ylabel("y")
         ax.set_zlabel("z")
         ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="lerobot-focal-bench cloud-content", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "lerobot-focal-bench cloud-content")
     parser.add_argument("--tasks", nargs="+", default=list(DEV_TASKS))
     parser.add_argument("--resets", type=int, default=5, help="object placements (reset seeds 0..N-1) per task")
     parser.add_argument("--out", type=Path, default=Path("docs/benchmarks"))

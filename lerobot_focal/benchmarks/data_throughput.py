@@ -29,7 +29,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from lerobot_focal.console import console_script
+from lerobot_focal.console import console_script, doc_parser
+from lerobot_focal.figures import save_png
 from lerobot_focal.presets import preset_path
 
 LOG_RE = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")
@@ -147,13 +148,11 @@ def _plot(result: dict, path: Path) -> None:
     ax.set_title(f"lerobot-train, focal CPU preset, batch {result['batch_size']}: {result['dataset']}", fontsize=8)
     ax.legend(fontsize=7, loc="lower right")
     ax.set_xlim(0, max(d + u for d, u in zip(data, upd, strict=True)) * 1.45)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "lerobot-focal-bench data")
     parser.add_argument("--root", type=Path, default=None,
                         help="LeRobotDataset root (default: write a synthetic 12x40-frame (512,3) point-cloud dataset)")
     parser.add_argument("--repo_id", default="local/focal_synthetic")

@@ -12,7 +12,6 @@ profiler) is reported beside them. Writes ``eval_profile.json`` and ``eval_profi
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import pstats
@@ -22,7 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from lerobot_focal.console import console_script
+from lerobot_focal.console import console_script, doc_parser
 
 GROUPS: list[tuple[str, re.Pattern]] = [
     ("simulator (MuJoCo, MetaWorld, gymnasium MuJoCo)", re.compile(r"mujoco|metaworld|gymnasium/envs")),
@@ -99,8 +98,7 @@ def run(checkpoint: Path, task: str, episodes: int, out: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="lerobot-focal-bench eval-profile", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-bench eval-profile")
     p.add_argument("--checkpoint", type=Path, required=True, help="a focal pretrained_model directory (state + env state)")
     p.add_argument("--task", default="pick-place")
     p.add_argument("--episodes", type=int, default=20)

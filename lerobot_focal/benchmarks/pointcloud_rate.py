@@ -9,13 +9,13 @@ pipeline with the workspace crop done the old way (back-project every pixel, the
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
 import mujoco
 import numpy as np
 
+from lerobot_focal.console import doc_parser
 from lerobot_focal.envs.metaworld_env import FocalMetaworldEnv
 from lerobot_focal.geometry.pointcloud import (
     PointCloudSpec,
@@ -131,7 +131,7 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.pointcloud_rate")
     parser.add_argument("--task", default="pick-place-v3")
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--runs", type=int, default=5)

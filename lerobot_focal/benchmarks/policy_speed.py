@@ -26,6 +26,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from lerobot_focal.figures import save_png
+
 SIZES = {"cpu": (64, 128, 256), "paper": (512, 1024, 2048)}
 STATE_DIM, ENV_DIM, ACTION_DIM = 9, 39, 4
 
@@ -202,9 +204,7 @@ def plot(rows: list[Row], path: Path) -> None:
         ax.set_title(f"U-Net {SIZES[size]}")
         for i, r in enumerate(sub):
             ax.text(r.median_ms, i, f" {r.median_ms:.0f}", va="center", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def run(sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path) -> list[Row]:

@@ -28,7 +28,6 @@ that thread competes with the policy for the cores, which a real camera does not
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -42,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_focal.console import console_script
+from lerobot_focal.console import console_script, doc_parser
+from lerobot_focal.figures import save_png
 
 STAGES = ("get_observation", "camera_read", "inference", "preprocessor", "depth_to_cloud", "select_action",
           "network", "postprocessor", "send_action")
@@ -307,14 +307,11 @@ def _plot(result: dict, path: Path) -> None:
     axes[1].set_ylabel("obs -> command ms (bar p50, whisker p99)")
     axes[1].set_title("policy steps, " + ", ".join(f"{c['name']} {c['fps_achieved']:.1f} Hz" for c in configs))
     axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="lerobot-focal-bench rollout", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-bench rollout")
     p.add_argument("--width", type=int, default=848)
     p.add_argument("--height", type=int, default=480)
     p.add_argument("--fps", type=int, default=30)

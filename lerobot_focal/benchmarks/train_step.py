@@ -19,7 +19,6 @@ to ``adamw``).
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import platform
@@ -29,6 +28,7 @@ from pathlib import Path
 import torch
 
 from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM, build_focal, time_ms
+from lerobot_focal.console import doc_parser
 
 
 def _batch(b: int, horizon: int) -> dict[str, torch.Tensor]:
@@ -111,8 +111,7 @@ def run(down_dims: tuple[int, ...], batch: int, repeats: int, compile_: bool, ou
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="lerobot-focal-bench train-step", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-bench train-step")
     p.add_argument("--down-dims", type=int, nargs="+", default=[32, 64, 128])
     p.add_argument("--batch", type=int, default=64)
     p.add_argument("--repeats", type=int, default=30)

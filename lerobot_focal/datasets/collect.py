@@ -25,7 +25,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import signal
@@ -36,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.datasets import commit_log
 
@@ -267,7 +267,7 @@ def collect(cfg: CollectConfig) -> dict:
     """Collect (or complete) the dataset; returns a summary dict. Raises KeyboardInterrupt after a clean stop."""
     from tqdm import tqdm
 
-    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig, TASK_DESCRIPTIONS
+    from lerobot_focal.envs.focal_metaworld import TASK_DESCRIPTIONS, FocalMetaworldEnvConfig
 
     cfg.root = Path(cfg.root)
     env_cfg = FocalMetaworldEnvConfig(
@@ -347,9 +347,7 @@ def collect(cfg: CollectConfig) -> dict:
 
 
 def parse_args(argv: list[str] | None = None) -> CollectConfig:
-    parser = argparse.ArgumentParser(
-        prog="lerobot-focal-collect", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = doc_parser(__doc__, "lerobot-focal-collect")
     parser.add_argument("--root", required=True, type=Path, help="local dataset directory (created or resumed)")
     parser.add_argument("--tasks", default="reach", help="tasks and/or groups, comma-separated (default: reach)")
     parser.add_argument("--repo_id", default="local/focal_metaworld")

@@ -15,7 +15,6 @@ Datasets stored in Minari's arrow format need only ``minari``; its HDF5 format a
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 
 
@@ -144,9 +144,7 @@ def import_minari(cfg: ImportConfig) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="lerobot-focal-import-minari", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = doc_parser(__doc__, "lerobot-focal-import-minari")
     parser.add_argument("--dataset_id", required=True, help="Minari dataset id, e.g. adroit/door/expert-v0")
     parser.add_argument("--root", required=True, type=Path, help="new LeRobotDataset directory")
     parser.add_argument("--task", default=None, help="hammer|door|pen (default: from the Minari env spec)")

@@ -21,7 +21,6 @@ whose video was not complete is dropped with the following ones, and the command
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import shutil
@@ -33,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from lerobot_focal.console import doc_parser
 from lerobot_focal.datasets.parquet_footer import FooterRebuildError, rebuild_footer
 
 logger = logging.getLogger(__name__)
@@ -240,9 +240,7 @@ def salvage(root: str | Path, out: str | Path | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="lerobot-focal-salvage-dataset", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = doc_parser(__doc__, "lerobot-focal-salvage-dataset")
     parser.add_argument("root", type=Path, help="the damaged LeRobotDataset folder (left unchanged)")
     parser.add_argument("--out", type=Path, default=None, help="new folder for the recovered dataset "
                         "(default: <root>_salvaged)")

@@ -24,7 +24,6 @@ trains on 512-point clouds with the CPU point-cloud preset instead (about 1 s pe
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -35,7 +34,8 @@ import time
 from pathlib import Path
 
 from lerobot_focal.benchmarks.paper_results import PAPER_FOCAL_METAWORLD
-from lerobot_focal.console import console_script
+from lerobot_focal.console import console_script, doc_parser
+from lerobot_focal.figures import save_png
 from lerobot_focal.presets import preset_path
 
 PRESETS = {"state": preset_path("cpu_state"), "pointcloud": preset_path("cpu")}
@@ -152,13 +152,11 @@ def plot(steps: list[int], losses: list[float], episodes: list[dict], title: str
     atv = sum(e["action_total_variation"] for e in episodes) / max(len(episodes), 1)
     ax1.set_title(f"lerobot-eval: {n_ok}/{len(episodes)} success, mean ATV {atv:.4f}")
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "python -m lerobot_focal.demos.metaworld")
     parser.add_argument("--task", default="button-press", help="MetaWorld v3 task (default: button-press)")
     parser.add_argument("--obs", choices=sorted(PRESETS), default="state",
                         help="state: 9-d state + 39-d object poses (default); pointcloud: 512-point clouds + state")

@@ -10,7 +10,6 @@ the policy along held-out episodes, one network evaluation per chunk of H action
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -21,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_focal.console import console_script
+from lerobot_focal.console import console_script, doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
+from lerobot_focal.figures import save_png
 from lerobot_focal.presets import preset_path
 
 CPU_PRESET = preset_path("cpu")
@@ -93,13 +93,11 @@ def plot(spec: SyntheticSpec, predicted: list[np.ndarray], path: Path) -> None:
     ax.set_title("Held-out episodes: focal vs demonstration")
     ax.legend(loc="best")
     ax.set_aspect("equal")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser(__doc__, "python -m lerobot_focal.demos.synthetic_reach")
     parser.add_argument("--output", type=Path, default=Path("outputs/demo"))
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--batch-size", type=int, default=64)

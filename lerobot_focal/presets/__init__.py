@@ -11,9 +11,10 @@ LeRobot, so the command answers instantly.
 
 from __future__ import annotations
 
-import argparse
 from importlib import resources
 from pathlib import Path
+
+from lerobot_focal.console import doc_parser
 
 PRESETS = {"paper": "focal_paper.json", "cpu": "focal_cpu.json", "cpu_state": "focal_cpu_state.json"}
 
@@ -30,8 +31,7 @@ def preset_path(name: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="lerobot-focal-config", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-config")
     p.add_argument("name", nargs="?", help=f"one of {', '.join(PRESETS)}")
     p.add_argument("--list", action="store_true", help="list the presets and their paths")
     args = p.parse_args(argv)

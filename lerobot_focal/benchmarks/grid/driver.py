@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+from ...console import doc_parser
 from .methods import resolve_method_phases
 from .presets import PRESETS
 from .results import ResultsFile
@@ -27,8 +28,7 @@ DEV_TASKS = "pick-place,sweep-into,disassemble,push-wall,basketball"
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="lerobot-focal-bench grid", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "lerobot-focal-bench grid")
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     p.add_argument("--tasks", default=DEV_TASKS,
                    help="MetaWorld v3 tasks and/or groups (easy, medium, hard, very_hard); default: the development set")

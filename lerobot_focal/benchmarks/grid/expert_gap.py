@@ -24,12 +24,13 @@ grid's report; runs already measured with as many episodes are skipped. Low-dime
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
+from ...console import doc_parser
+from ...figures import save_png
 from .revisit import add_run_filters, checkpoint_of, measure_runs
 
 EXPERT_GAP_SEED = 300_000
@@ -222,14 +223,11 @@ def plot(done: dict[str, dict], path: Path) -> None:
     axes[0][0].legend(fontsize=7)
     for ax in axes[-1]:
         ax.set_xlabel("episode step")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.expert_gap", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.expert_gap")
     add_run_filters(p, "focal")
     p.add_argument("--episodes", type=int, default=20, help="episodes per run (default 20)")
     args = p.parse_args(argv)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...figures import save_png
 from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
 from .methods import METHODS
 from .metrics import mean_curve, mean_std, paired_difference
@@ -389,9 +390,7 @@ def _plots(out_dir: Path, agg: dict, records: list[dict], tasks: list[str], meth
             ax.axis("off")
         axes.flat[0].legend(fontsize=7)
         fig.suptitle(f"preset {preset['name']}")
-        fig.tight_layout()
-        fig.savefig(out_dir / f"{name}.png", dpi=100)
-        plt.close(fig)
+        save_png(fig, out_dir / f"{name}.png", dpi=100)
 
     fig, ax = plt.subplots(figsize=(1.6 + 0.9 * len(tasks) * len(methods) / 2, 3.6))
     groups = tasks + ["Average"]
@@ -412,9 +411,7 @@ def _plots(out_dir: Path, agg: dict, records: list[dict], tasks: list[str], meth
     ax.set_title(f"preset {preset['name']}: mean ± std over seeds")
     ax.legend(fontsize=7)
     ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out_dir / "success_bars.png", dpi=100)
-    plt.close(fig)
+    save_png(fig, out_dir / "success_bars.png", dpi=100)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -26,13 +26,14 @@ are skipped. A low-dimensional run takes about half a minute (both datasets, one
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ...console import doc_parser
+from ...figures import save_png
 from .results import ResultsFile
 from .revisit import add_run_filters, checkpoint_of, measure_runs
 
@@ -217,14 +218,11 @@ def plot(done: dict[str, dict], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("‖f(M_τ, τ) − M_1‖², proximal chunk")
     axes[0][-1].legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_png(fig, path, dpi=100)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.tau_profile", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.tau_profile")
     add_run_filters(p, "focal,focal_online,wo_las,wo_fco_las", "focal-family methods to measure")
     p.add_argument("--frames", type=int, default=FRAMES, help=f"frames per dataset (default {FRAMES})")
     args = p.parse_args(argv)

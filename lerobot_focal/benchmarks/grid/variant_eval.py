@@ -24,10 +24,10 @@ compared are skipped).
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 
+from ...console import doc_parser
 from .metrics import paired_difference
 from .processes import run_logged
 from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
@@ -53,8 +53,7 @@ GRID_LABEL = "grid (EMA, 1 step)"
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lerobot_focal.benchmarks.grid.variant_eval", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.variant_eval")
     p.add_argument("--variant", choices=sorted(VARIANTS), required=True)
     add_run_filters(p, "focal,focal_online", "focal-family methods to compare")
     args = p.parse_args(argv)
