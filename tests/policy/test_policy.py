@@ -1,11 +1,14 @@
 """FocalPolicy's contract with LeRobot: NFE per chunk, queues, save/load, EMA, and clear errors on bad input."""
 
+import copy
+
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy
 from lerobot_focal.policy.configuration_focal import FocalConfigError
+from lerobot_focal.policy.encoders import PointCloudEncoder
 from lerobot_focal.policy.modeling_focal import ema_decay
 
 from .helpers import small_config, small_policy
@@ -241,6 +244,27 @@ def test_rgb_frames_are_encoded_once_each_with_the_actions_of_whole_window_encod
     policy.reset()
     policy.select_action(dict(frames[0]))
     assert len(policy._frame_features) == policy.config.n_obs_steps
+
+
+def test_pointcloud_encoder_in_place_relus_give_the_out_of_place_outputs_and_gradients():
+    """The point MLP's ReLUs overwrite their LayerNorm's output (a CPU speed-up): autograd must still see the
+    values it saved, so outputs and every gradient equal those of out-of-place ReLUs bit for bit."""
+    torch.manual_seed(0)
+    encoder = PointCloudEncoder()
+    reference = copy.deepcopy(encoder)
+    relus = [m for m in reference.modules() if isinstance(m, torch.nn.ReLU)]
+    assert len(relus) == 3 and all(m.inplace for m in relus)
+    for m in relus:
+        m.inplace = False
+    points = torch.randn(4, 2, 256, 3)
+    outputs = []
+    for net in (encoder, reference):
+        out = net(points)
+        (out.square() * torch.linspace(0, 1, out.shape[-1])).sum().backward()
+        outputs.append(out)
+    assert torch.equal(outputs[0], outputs[1])
+    for (name, a), b in zip(encoder.named_parameters(), reference.parameters(), strict=True):
+        assert a.grad is not None and torch.equal(a.grad, b.grad), name
 
 
 # --- bad input --------------------------------------------------------------------------------------------
