@@ -10,6 +10,7 @@ MetaWorld's ``_freeze_rand_vec``): overriding them is what keeps the rest LeRobo
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from typing import Any
 
@@ -49,6 +50,18 @@ from .focal_metaworld import (
     METAWORLD_ENV_STATE_DIM,
     METAWORLD_STATE_DIM,
 )
+
+
+@functools.cache
+def metaworld_task(env_name: str) -> tuple[type, Any]:
+    """The env class and the task (``MT1(env_name, seed=42)``'s first, as LeRobot uses) of a MetaWorld task.
+
+    Cached per process: ``MT1`` builds an env and samples all of its 50 tasks to hand out one, ~0.4 s, and
+    `lerobot-train` builds its evaluation envs anew at every evaluation (20 envs: 14 % of a point-cloud
+    evaluation's time). The task is plain data that ``set_task`` only reads, so envs can share it.
+    """
+    mt1 = metaworld.MT1(env_name, seed=42)
+    return mt1.train_classes[env_name], mt1.train_tasks[0]
 
 
 def table_top(model: mujoco.MjModel, data: mujoco.MjData) -> float:
@@ -155,14 +168,14 @@ class FocalMetaworldEnv(MetaworldEnv):
         """
         if self._env is not None:
             return
-        mt1 = metaworld.MT1(self._env_name, seed=42)
-        env = mt1.train_classes[self._env_name](
+        env_class, task = metaworld_task(self._env_name)
+        env = env_class(
             render_mode="rgb_array",
             camera_name=self.camera_name,
             width=self.observation_width,
             height=self.observation_height,
         )
-        env.set_task(mt1.train_tasks[0])
+        env.set_task(task)
         env.max_path_length = self._max_episode_steps  # MetaWorld then reports truncated at this step
         if self.camera_pos is not None:
             cam_id = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_CAMERA, self.camera_name)

@@ -1,5 +1,6 @@
 """Real MuJoCo sims: every env type x obs type resets and steps with the declared shapes; success is reported."""
 
+import functools
 import json
 
 import numpy as np
@@ -96,6 +97,36 @@ def test_metaworld_seed_controls_object_positions():
         assert not np.array_equal(a["pointcloud"], c["pointcloud"])
     finally:
         env.close()
+
+
+def test_metaworld_envs_share_one_task_per_process_and_observe_as_a_fresh_build(monkeypatch):
+    """lerobot-train builds its evaluation envs anew at every evaluation: MetaWorld's MT1 (~0.4 s, sampling 50
+    tasks) must run once per task and process, and a cached task must give the envs a fresh build gives."""
+    import metaworld
+
+    from lerobot_focal.envs import metaworld_env
+    from lerobot_focal.envs.metaworld_env import FocalMetaworldEnv
+
+    def first_obs(seed: int) -> dict:
+        env = FocalMetaworldEnv(task="push-wall-v3", obs_type="state", env_state=True)
+        try:
+            return env.reset(seed=seed)[0]
+        finally:
+            env.close()
+
+    uncached = metaworld_env.metaworld_task.__wrapped__
+    monkeypatch.setattr(metaworld_env, "metaworld_task", uncached)
+    fresh = [first_obs(s) for s in (0, 1)]
+    builds = []
+    real_mt1 = metaworld.MT1
+    monkeypatch.setattr(metaworld, "MT1", lambda *a, **k: builds.append(a) or real_mt1(*a, **k))
+    monkeypatch.setattr(metaworld_env, "metaworld_task", functools.cache(uncached))
+    shared = [first_obs(s) for s in (0, 1, 0)]
+    assert builds == [("push-wall-v3",)]
+    for a, b in zip(fresh + fresh[:1], shared, strict=True):
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key])
+    assert not np.array_equal(shared[0]["environment_state"], shared[1]["environment_state"])
 
 
 @pytest.mark.parametrize("task, top", [("pick-place", 0.0), ("sweep-into", 0.05)])
