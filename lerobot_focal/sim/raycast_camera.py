@@ -122,6 +122,15 @@ def _segment_hits_box(
     return (t_far >= np.maximum(t_near, 0.0)) & (t_near <= t_max)
 
 
+def _opaque(model: mujoco.MjModel) -> np.ndarray:
+    """Per geom: can a ray hit it? ``mj_ray`` skips geoms whose colour (the material's, if any) has alpha 0,
+    such as MetaWorld's mocap geom, which moves with the hand every step."""
+    alpha = model.geom_rgba[:, 3].copy()
+    has_material = model.geom_matid >= 0
+    alpha[has_material] = model.mat_rgba[model.geom_matid[has_material], 3]
+    return alpha > 0
+
+
 class RayCastDepthCamera:
     """Renders z-depth images of a MuJoCo scene from a named camera by casting one ray per pixel.
 
@@ -164,6 +173,10 @@ class RayCastDepthCamera:
         self._static_geoms = model.body_weldid[model.geom_bodyid] == 0
         visible = self._geomgroup[np.clip(model.geom_group, 0, mujoco.mjNGROUP - 1)] > 0
         self._dynamic_geoms = np.flatnonzero(~self._static_geoms & visible)
+        # "Static" means welded to the world, not fixed for good: tasks move such bodies between episodes through
+        # the model (MetaWorld's basketball hoop and disassemble peg, Adroit's door frame). The static depth is
+        # cached per pose of the static geoms a ray can hit, so a reset that moves one recomputes it.
+        self._static_hittable = np.flatnonzero(self._static_geoms & visible & _opaque(model))
         self._last_cast = 0
         self._pose_key: np.ndarray | None = None
         self._active: np.ndarray = np.arange(0)
@@ -190,8 +203,12 @@ class RayCastDepthCamera:
         return mujoco_camera_pose(self.model, data, self.camera_id)
 
     def _prepare(self, pose: CameraPose, data: mujoco.MjData) -> None:
-        """Per camera pose (once for a fixed camera): world rays, the workspace mask, the static depth."""
-        key = np.concatenate([pose.position, pose.rotation.ravel()])
+        """Per camera pose and pose of the static geoms (once per episode at most for a fixed camera): world
+        rays, the workspace mask, the static depth."""
+        ids = self._static_hittable
+        key = np.concatenate(
+            [pose.position, pose.rotation.ravel(), data.geom_xpos[ids].ravel(), data.geom_xmat[ids].ravel()]
+        )
         if self._pose_key is not None and np.array_equal(key, self._pose_key):
             return
         self._world_rays = np.ascontiguousarray(self._cam_rays @ pose.rotation.T)

@@ -239,6 +239,27 @@ def test_metaworld_vector_env_and_processor():
         vec.close()
 
 
+@pytest.mark.parametrize(("suite", "task"), [("metaworld", "basketball"), ("metaworld", "disassemble"),
+                                           ("adroit", "door"), ("adroit", "pen")])
+def test_cloud_after_a_reset_that_moves_a_welded_body_is_the_cloud_of_a_fresh_env(suite, task):
+    """Resets move bodies welded to the world (the hoop, the peg, the door frame, the target pen). The ray
+    caster caches the depth of welded geoms; a reused env, as `lerobot-focal-collect` and `lerobot-eval` use
+    them, once kept showing them where the first episode had put them."""
+    from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    config = FocalMetaworldEnvConfig if suite == "metaworld" else FocalAdroitEnvConfig
+    reused, fresh = (config(task=task, obs_type="pointcloud").make_single_env() for _ in range(2))
+    try:
+        first = reused.reset(seed=0)[0]["pointcloud"]
+        again = reused.reset(seed=5)[0]["pointcloud"]
+        np.testing.assert_array_equal(again, fresh.reset(seed=5)[0]["pointcloud"])
+        assert not np.array_equal(first, again)
+    finally:
+        reused.close()
+        fresh.close()
+
+
 # Every obs type, every task, and a point cloud from every task (each case builds its own simulator).
 ADROIT_CASES = [
     ("hammer", 26, "state"),
