@@ -100,8 +100,8 @@ def test_metaworld_seed_controls_object_positions():
 
 
 def test_metaworld_envs_share_one_task_per_process_and_observe_as_a_fresh_build(monkeypatch):
-    """lerobot-train builds its evaluation envs anew at every evaluation: MetaWorld's MT1 (~0.4 s, sampling 50
-    tasks) must run once per task and process, and a cached task must give the envs a fresh build gives."""
+    """lerobot-train builds its evaluation envs anew at every evaluation: MetaWorld's MT1 (about a second,
+    sampling 50 tasks) must run once per task and process, and a cached task must give the envs a fresh build gives."""
     import metaworld
 
     from lerobot_focal.envs import metaworld_env
