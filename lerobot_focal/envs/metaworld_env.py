@@ -56,10 +56,9 @@ from .focal_metaworld import (
 def metaworld_task(env_name: str) -> tuple[type, Any]:
     """The env class and the task (``MT1(env_name, seed=42)``'s first, as LeRobot uses) of a MetaWorld task.
 
-    Cached per process: ``MT1`` builds an env and samples all of its 50 tasks to hand out one (about a second
-    per env: 10 envs built and reset took 13.7 s without the cache, 1.0 s with it), and `lerobot-train` builds
-    its 20 evaluation envs anew at every evaluation (14 % of a point-cloud evaluation's time). The task is plain
-    data that ``set_task`` only reads, so envs can share it.
+    Cached per process: ``MT1`` builds an env and samples all 50 of its tasks to hand out one, and LeRobot's
+    `lerobot-train` builds its evaluation envs anew at every evaluation, so without the cache that work ran once
+    per env and evaluation. The task is plain data that ``set_task`` only reads, so envs can share it.
     """
     mt1 = metaworld.MT1(env_name, seed=42)
     return mt1.train_classes[env_name], mt1.train_tasks[0]
