@@ -178,6 +178,9 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
     assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+    # One seed of two so far: the cell says so instead of printing a spread of "± 0.0" over a single run.
+    assert "| FocalPolicy (512-pt cloud) | 75.0 (1 seed) | 75.0 (1 seed) | 75.0 (1 seed) |" in report
+    assert "| FocalPolicy | 65.0 ± 5.0 | 65.0 ± 5.0 |" in report
     assert "2 of the runs continued from a checkpoint after an interruption (LeRobot's resume; 3.0 min" in report
     # Point clouds beside low-dim focal on the seeds both have (seed 0: 0.75 − 0.6), and against the paper.
     assert "| FocalPolicy (512-pt cloud) − FocalPolicy: the paper's 512-point cloud" in module

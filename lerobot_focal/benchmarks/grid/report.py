@@ -34,6 +34,16 @@ def _fmt(m: float, s: float | None = None, scale: float = 100.0, digits: int = 1
     return f"{m * scale:.{digits}f} ± {s * scale:.{digits}f}"
 
 
+def _cell(mean: float, std: float, n: int, n_grid_seeds: int, scale: float, digits: int) -> str:
+    """A table cell: mean ± std over `n` seeds, saying how many seeds when fewer than the grid's have finished.
+
+    A spread over one seed would print as "± 0.0", which reads as a measured agreement; it is left out."""
+    if n >= n_grid_seeds:
+        return _fmt(mean, std, scale=scale, digits=digits)
+    text = _fmt(mean, std if n > 1 else None, scale=scale, digits=digits)
+    return text if text == "–" else f"{text} ({n} seed{'s' if n > 1 else ''})"
+
+
 def aggregate(records: list[dict]) -> dict:
     """{method: {task: {metric: (mean, std), 'curve': ..., 'seeds': n}}, plus the task average per seed."""
     by = defaultdict(lambda: defaultdict(list))
@@ -265,8 +275,9 @@ def write_report(out_dir: Path) -> Path:
     md += [f"{len(records)} runs: tasks {', '.join(tasks)}; seeds {', '.join(map(str, grid['seeds']))}. "
            f"Score = mean of the top-{preset['top_k']} of {preset['steps'] // preset['eval_every']} evaluations "
            f"({preset['eval_episodes']} episodes every {preset['eval_every']} steps), then mean ± std over seeds "
-           f"(success in %; one evaluation episode is {100 / preset['eval_episodes']:.0f} points). Wall times are "
-           "those of the machine the grid ran on, other jobs included.", ""]
+           f"(success in %; one evaluation episode is {100 / preset['eval_episodes']:.0f} points); a cell that "
+           "has fewer seeds so far says how many. Wall times are those of the machine the grid ran on, other "
+           "jobs included.", ""]
     if failed:
         md += [f"**{len(failed)} runs failed** and are not in the tables: "
                + ", ".join(sorted(r["key"] for r in failed)), ""]
@@ -276,9 +287,12 @@ def write_report(out_dir: Path) -> Path:
         rows.append("| Method | " + " | ".join(tasks) + " | Average |")
         rows.append("|---|" + "---|" * (len(tasks) + 1))
         for m in methods:
-            cells = [_fmt(*agg[m][t][key], scale=scale, digits=digits) if t in agg[m] else "–" for t in tasks]
-            avg = mean_std(_task_average_per_seed(records, m, tasks, key))
-            rows.append(f"| {label[m]} | " + " | ".join(cells) + f" | {_fmt(*avg, scale=scale, digits=digits)} |")
+            n_seeds = len(grid["seeds"])
+            cells = [_cell(*agg[m][t][key], len(agg[m][t]["seeds"]), n_seeds, scale, digits) if t in agg[m]
+                     else "–" for t in tasks]
+            per_seed = _task_average_per_seed(records, m, tasks, key)
+            avg = _cell(*mean_std(per_seed), len(per_seed), n_seeds, scale, digits)
+            rows.append(f"| {label[m]} | " + " | ".join(cells) + f" | {avg} |")
         return rows + list(extra) + [""]
 
     paper_row = []
