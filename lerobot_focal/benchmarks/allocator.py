@@ -29,40 +29,14 @@ from lerobot_focal.console import doc_parser
 SETTINGS = ("glibc defaults", "MALLOC_ENV (grid)")
 
 
-def _policy_and_batch(inputs: str, batch: int):
-    import torch
-    from lerobot.configs.types import FeatureType, PolicyFeature
-
-    from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM
-    from lerobot_focal.policy import FocalConfig, FocalPolicy
-
-    g = torch.Generator().manual_seed(1)
-    features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,))}
-    if inputs == "pointcloud":
-        features["observation.pointcloud"] = PolicyFeature(type=FeatureType.STATE, shape=(512, 3))
-        extra = {"observation.pointcloud": torch.randn(batch, 2, 512, 3, generator=g)}
-    else:
-        features["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_DIM,))
-        extra = {"observation.environment_state": torch.randn(batch, 2, ENV_DIM, generator=g)}
-    torch.manual_seed(0)
-    cfg = FocalConfig(device="cpu", down_dims=(32, 64, 128), use_env_state=inputs != "pointcloud",
-                      input_features=features,
-                      output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))})
-    policy = FocalPolicy(cfg).train()
-    data = {"observation.state": torch.randn(batch, 2, STATE_DIM, generator=g), **extra,
-            "action": torch.randn(batch, cfg.horizon, ACTION_DIM, generator=g),
-            "action_is_pad": torch.zeros(batch, cfg.horizon, dtype=torch.bool)}
-    return policy, data
-
-
 def child(inputs: str, steps: int, batch: int) -> dict:
     """Time ``steps`` training steps in this process (whatever its malloc settings) and fingerprint the result."""
     import torch
 
-    from lerobot_focal.benchmarks.train_step import _step_fn
+    from lerobot_focal.benchmarks.train_step import _step_fn, policy_and_batch
 
     torch.set_num_threads(1)
-    policy, data = _policy_and_batch(inputs, batch)
+    policy, data = policy_and_batch(inputs, batch)
     step = _step_fn(policy, policy.config.get_optimizer_preset().build(policy.get_optim_params()), data, 1)
     torch.manual_seed(2)
     for _ in range(2):

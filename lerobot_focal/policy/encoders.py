@@ -24,9 +24,19 @@ class PointCloudEncoder(nn.Module):
 
     Order-invariant through the max-pool, which is why it tolerates farthest-point-sampled clouds whose point
     order carries no meaning.
+
+    Training runs the per-point MLP with gradients on the points that hold some channel's maximum only
+    (``winners_only_backward``): the max-pool passes gradient to those points alone, and the MLP treats each
+    point on its own (LayerNorm normalises over a point's channels, there are no batch statistics), so the
+    other points contribute nothing to the loss's value or gradient beyond the maxima they lose. A no-grad pass
+    over the whole cloud finds the winners (≈ 60 of 512 points for DP3's 256 channels); the forward and
+    backward with gradients then run on those only. Output and gradients are those of the dense computation up
+    to float rounding (tests/policy/test_policy.py); `lerobot-focal-bench train-step --inputs pointcloud` times
+    both in one process.
     """
 
-    def __init__(self, in_channels: int = 3, out_dim: int = 64, hidden: tuple[int, ...] = (64, 128, 256)):
+    def __init__(self, in_channels: int = 3, out_dim: int = 64, hidden: tuple[int, ...] = (64, 128, 256),
+                 winners_only_backward: bool = True):
         super().__init__()
         layers: list[nn.Module] = []
         prev = in_channels
@@ -39,11 +49,27 @@ class PointCloudEncoder(nn.Module):
         self.point_mlp = nn.Sequential(*layers)
         self.projection = nn.Sequential(nn.Linear(prev, out_dim), nn.LayerNorm(out_dim))
         self.in_channels = in_channels
+        self.winners_only_backward = winners_only_backward
 
     def forward(self, points: Tensor) -> Tensor:
         """points: (B, P, C≥in_channels) → (B, out_dim). Extra channels (e.g. rgb) are ignored."""
-        feats = self.point_mlp(points[..., : self.in_channels])
+        points = points[..., : self.in_channels]
+        if self.winners_only_backward and torch.is_grad_enabled() and self.point_mlp[0].weight.requires_grad:
+            points = self._max_winners(points)
+        feats = self.point_mlp(points)
         return self.projection(feats.max(dim=-2).values)
+
+    @torch.no_grad()
+    def _max_winners(self, points: Tensor) -> Tensor:
+        """(B, K, C): each cloud's points that hold some channel's maximum, K = the most any cloud has.
+
+        A cloud with fewer winners is padded with some of its other points: they lose every maximum, so they
+        change neither the pooled features nor the gradients."""
+        winners = self.point_mlp(points).argmax(dim=-2)  # (B, F): the point holding each channel's maximum
+        held = torch.zeros(points.shape[:-1], dtype=torch.uint8, device=points.device).scatter_(-1, winners, 1)
+        k = int(held.sum(-1).max())
+        order = torch.argsort(held, dim=-1, descending=True, stable=True)[..., :k]
+        return torch.gather(points, -2, order.unsqueeze(-1).expand(*order.shape, points.shape[-1]))
 
 
 class StateEncoder(nn.Module):

@@ -267,6 +267,31 @@ def test_pointcloud_encoder_in_place_relus_give_the_out_of_place_outputs_and_gra
         assert a.grad is not None and torch.equal(a.grad, b.grad), name
 
 
+def test_pointcloud_encoder_trains_on_the_max_pool_winners_with_the_dense_outputs_and_gradients():
+    """With gradients, the point MLP runs on the points that hold some channel's maximum only (each cloud padded
+    to the largest winner count): the pooled features and every gradient are those of running it on all points,
+    up to the float rounding of a different summation order, and without gradients nothing changes."""
+    torch.manual_seed(0)
+    encoder = PointCloudEncoder()
+    dense = copy.deepcopy(encoder)
+    dense.winners_only_backward = False
+    # Clouds of different spreads have different winner counts: the padding is exercised.
+    points = torch.randn(3, 2, 512, 3) * torch.tensor([0.1, 1.0, 10.0]).view(3, 1, 1, 1)
+    winners = encoder._max_winners(points)
+    assert winners.shape[:2] == (3, 2) and 0 < winners.shape[2] < 512 / 2
+    outputs = []
+    for net in (encoder, dense):
+        out = net(points)
+        (out.square() * torch.linspace(0, 1, out.shape[-1])).sum().backward()
+        outputs.append(out)
+    torch.testing.assert_close(outputs[0], outputs[1], rtol=1e-6, atol=1e-6)
+    for (name, a), b in zip(encoder.named_parameters(), dense.parameters(), strict=True):
+        assert a.grad is not None and a.grad.abs().sum() > 0, name
+        torch.testing.assert_close(a.grad, b.grad, rtol=1e-4, atol=1e-6, msg=name)
+    with torch.no_grad():
+        assert torch.equal(encoder(points), dense(points))
+
+
 # --- bad input --------------------------------------------------------------------------------------------
 
 
