@@ -197,11 +197,11 @@ def run(down_dims: tuple[int, ...], batch: int, repeats: int, compile_: bool, ou
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{stem}.json").write_text(json.dumps(result, indent=1))
     what = "512-point clouds + 9-d state" if inputs == "pointcloud" else "9-d state + 39-d object poses"
+    command = f"lerobot-focal-bench train-step --inputs {inputs}" + (f" --clouds {clouds_root}" if clouds_root else "")
     md = [f"# focal training step on the CPU: {what}, U-Net {'/'.join(map(str, down_dims))}, batch {batch}", "",
-          f"Median of {repeats} round-robin repeats in one process (`lerobot-focal-bench train-step --inputs "
-          f"{inputs}{f' --clouds {clouds_root}' if clouds_root else ''}`); step = forward with the EMA target, backward, clip, optimizer step, EMA update. Speed-up "
-          f"is per training sample, against {first}. glibc malloc: "
-          f"{f'`{malloc}`' if malloc else 'defaults'}.", "",
+          f"Median of {repeats} round-robin repeats in one process (`{command}`); step = forward with the EMA "
+          f"target, backward, clip, optimizer step, EMA update. Speed-up is per training sample, against {first}. "
+          f"glibc malloc: {f'`{malloc}`' if malloc else 'defaults'}.", "",
           "| variant | batch | ms / step | ms / sample | speed-up per sample |", "|---|---|---|---|---|"]
     md += [f"| {r['variant']} | {r['batch']} | {r['ms_per_step']:.1f} | {r['ms_per_sample']:.3f} | "
            f"{r['speedup_per_sample']:.2f}× |" for r in rows]

@@ -30,9 +30,9 @@ class PointCloudEncoder(nn.Module):
     point on its own (LayerNorm normalises over a point's channels, there are no batch statistics), so the
     other points contribute nothing to the loss's value or gradient beyond the maxima they lose. A no-grad pass
     over the whole cloud finds the winners (about 100 of 512 points of a MetaWorld cloud for DP3's 256
-    channels); the forward and backward with gradients then run on those only. Output and gradients are those of the dense computation up
-    to float rounding (tests/policy/test_policy.py); `lerobot-focal-bench train-step --inputs pointcloud` times
-    both in one process.
+    channels); the forward and backward with gradients then run on those only. Output and gradients are those
+    of the dense computation up to float rounding (tests/policy/test_policy.py); `lerobot-focal-bench
+    train-step --inputs pointcloud` times both in one process.
     """
 
     def __init__(self, in_channels: int = 3, out_dim: int = 64, hidden: tuple[int, ...] = (64, 128, 256),
