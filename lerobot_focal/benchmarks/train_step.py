@@ -39,6 +39,7 @@ import torch
 
 from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM, time_ms
 from lerobot_focal.console import doc_parser
+from lerobot_focal.constants import OBS_POINTCLOUD
 
 
 def dataset_clouds(root: Path, batch: int) -> torch.Tensor:
@@ -48,7 +49,7 @@ def dataset_clouds(root: Path, batch: int) -> torch.Tensor:
 
     frames = LeRobotDataset("local/clouds", root=root).hf_dataset.with_format("torch")
     starts = torch.linspace(0, len(frames) - 2, batch).long().tolist()
-    pairs = torch.stack([frames[i: i + 2]["observation.pointcloud"][..., :3] for i in starts])
+    pairs = torch.stack([frames[i: i + 2][OBS_POINTCLOUD][..., :3] for i in starts])
     lo, hi = pairs.amin(dim=(0, 1, 2)), pairs.amax(dim=(0, 1, 2))
     return (pairs - lo) / (hi - lo).clamp_min(1e-8) * 2 - 1
 
@@ -66,8 +67,8 @@ def policy_and_batch(inputs: str, batch: int, down_dims: tuple[int, ...] = (32, 
     if inputs == "pointcloud":
         if clouds is None:
             clouds = torch.randn(batch, 2, 512, 3, generator=g)
-        features["observation.pointcloud"] = PolicyFeature(type=FeatureType.STATE, shape=tuple(clouds.shape[2:]))
-        extra = {"observation.pointcloud": clouds}
+        features[OBS_POINTCLOUD] = PolicyFeature(type=FeatureType.STATE, shape=tuple(clouds.shape[2:]))
+        extra = {OBS_POINTCLOUD: clouds}
     else:
         features["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_DIM,))
         extra = {"observation.environment_state": torch.randn(batch, 2, ENV_DIM, generator=g)}
@@ -98,9 +99,8 @@ def _step_fn(policy, optimizer, batch, threads: int):
 
 
 def _with_dense_cloud_backward(policy):
-    for model in (policy.model, policy.ema_model):
-        if model is not None:
-            model.obs_encoder.pointcloud.winners_only_backward = False
+    # The online encoder only: the EMA target runs without gradients, where both paths are the same.
+    policy.model.obs_encoder.pointcloud.winners_only_backward = False
     return policy
 
 
@@ -152,14 +152,12 @@ def _pointcloud_variants(base, data, agreement_steps: int) -> tuple[dict, dict]:
         losses[name] = curve
     dense, winners = losses.values()
     drift = max(abs(a - b) / abs(a) for a, b in zip(dense, winners, strict=True)) if agreement_steps else None
-    encoder = base.model.obs_encoder.pointcloud
-    with torch.no_grad():  # how many points of each cloud hold some channel's maximum at the start
-        counts = [len(torch.unique(w)) for w in encoder.point_mlp(data["observation.pointcloud"].flatten(0, 1))
-                  .argmax(dim=-2)]
+    # How many points of each cloud hold some channel's maximum at the start.
+    counts = base.model.obs_encoder.pointcloud.max_winners(data[OBS_POINTCLOUD].flatten(0, 1)).sum(-1).tolist()
     agreement = {"steps": agreement_steps, "loss_dense": dense, "loss_winners": winners,
                  "max_relative_loss_difference": drift,
                  "winners_per_cloud": {"mean": sum(counts) / len(counts), "max": max(counts),
-                                       "points": data["observation.pointcloud"].shape[-2]}}
+                                       "points": data[OBS_POINTCLOUD].shape[-2]}}
     variants = {}
     for name, build in builds.items():
         policy = build()

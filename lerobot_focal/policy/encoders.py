@@ -60,13 +60,18 @@ class PointCloudEncoder(nn.Module):
         return self.projection(feats.max(dim=-2).values)
 
     @torch.no_grad()
+    def max_winners(self, points: Tensor) -> Tensor:
+        """(B, P) bool: the points of each cloud that hold some channel's maximum (no gradients)."""
+        winners = self.point_mlp(points[..., : self.in_channels]).argmax(dim=-2)  # (B, F): each channel's point
+        return torch.zeros(points.shape[:-1], dtype=torch.bool, device=points.device).scatter_(-1, winners, True)
+
+    @torch.no_grad()
     def _max_winners(self, points: Tensor) -> Tensor:
         """(B, K, C): each cloud's points that hold some channel's maximum, K = the most any cloud has.
 
         A cloud with fewer winners is padded with some of its other points: they lose every maximum, so they
         change neither the pooled features nor the gradients."""
-        winners = self.point_mlp(points).argmax(dim=-2)  # (B, F): the point holding each channel's maximum
-        held = torch.zeros(points.shape[:-1], dtype=torch.uint8, device=points.device).scatter_(-1, winners, 1)
+        held = self.max_winners(points).to(torch.uint8)
         k = int(held.sum(-1).max())
         order = torch.argsort(held, dim=-1, descending=True, stable=True)[..., :k]
         return torch.gather(points, -2, order.unsqueeze(-1).expand(*order.shape, points.shape[-1]))
