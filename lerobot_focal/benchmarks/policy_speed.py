@@ -42,7 +42,7 @@ class Row:
     ratio_to: str = ""
 
 
-def _features():
+def benchmark_features():
     from lerobot.configs.types import FeatureType, PolicyFeature
 
     inputs = {
@@ -74,11 +74,15 @@ def time_ms(fns: dict[str, object], device: str, repeats: int, warmup: int = 2) 
     return {name: statistics.median(v) for name, v in samples.items()}
 
 
-def build_focal(down_dims, device: str):
+def build_focal(down_dims, device: str, inputs: dict | None = None):
+    """A benchmark focal at U-Net size `down_dims` on `inputs` (default: state + environment state; the object
+    poses condition the policy whenever they are among the inputs)."""
     from lerobot_focal.policy import FocalConfig, FocalPolicy
 
-    inputs, outputs = _features()
-    cfg = FocalConfig(device=device, down_dims=down_dims, use_env_state=True, input_features=inputs, output_features=outputs)
+    default_inputs, outputs = benchmark_features()
+    inputs = default_inputs if inputs is None else inputs
+    cfg = FocalConfig(device=device, down_dims=down_dims, use_env_state="observation.environment_state" in inputs,
+                      input_features=inputs, output_features=outputs)
     return FocalPolicy(cfg).to(device)
 
 
@@ -86,7 +90,7 @@ def build_diffusion(down_dims, device: str, scheduler: str, steps: int):
     from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-    inputs, outputs = _features()
+    inputs, outputs = benchmark_features()
     cfg = DiffusionConfig(
         device=device,
         down_dims=down_dims,

@@ -37,7 +37,9 @@ from pathlib import Path
 
 import torch
 
-from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM, time_ms
+from lerobot_focal.benchmarks.policy_speed import (
+    ACTION_DIM, ENV_DIM, STATE_DIM, benchmark_features, build_focal, time_ms,
+)
 from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 
@@ -60,26 +62,21 @@ def policy_and_batch(inputs: str, batch: int, down_dims: tuple[int, ...] = (32, 
     `clouds`, (batch, 2, P, 3), or Gaussian noise)."""
     from lerobot.configs.types import FeatureType, PolicyFeature
 
-    from lerobot_focal.policy import FocalConfig, FocalPolicy
-
     g = torch.Generator().manual_seed(1)
-    features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,))}
+    features = benchmark_features()[0]
     if inputs == "pointcloud":
         if clouds is None:
             clouds = torch.randn(batch, 2, 512, 3, generator=g)
-        features[OBS_POINTCLOUD] = PolicyFeature(type=FeatureType.STATE, shape=tuple(clouds.shape[2:]))
+        features = {"observation.state": features["observation.state"],
+                    OBS_POINTCLOUD: PolicyFeature(type=FeatureType.STATE, shape=tuple(clouds.shape[2:]))}
         extra = {OBS_POINTCLOUD: clouds}
     else:
-        features["observation.environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_DIM,))
         extra = {"observation.environment_state": torch.randn(batch, 2, ENV_DIM, generator=g)}
     torch.manual_seed(0)
-    cfg = FocalConfig(device="cpu", down_dims=down_dims, use_env_state=inputs != "pointcloud",
-                      input_features=features,
-                      output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))})
-    policy = FocalPolicy(cfg).train()
+    policy = build_focal(down_dims, "cpu", features).train()
     data = {"observation.state": torch.randn(batch, 2, STATE_DIM, generator=g), **extra,
-            "action": torch.randn(batch, cfg.horizon, ACTION_DIM, generator=g),
-            "action_is_pad": torch.zeros(batch, cfg.horizon, dtype=torch.bool)}
+            "action": torch.randn(batch, policy.config.horizon, ACTION_DIM, generator=g),
+            "action_is_pad": torch.zeros(batch, policy.config.horizon, dtype=torch.bool)}
     return policy, data
 
 
