@@ -124,6 +124,22 @@ def test_overridden_presets_get_their_own_run_folders_and_share_data_only_when_t
     assert "--policy.down_dims=[64,128,256]" in METHODS["focal"].train_args(wide.preset)
 
 
+def test_a_capped_method_runs_the_first_seeds_of_the_grid(tmp_path):
+    """cpu_plateau runs focal on point clouds on two of the grid's seeds; `--seeds` still picks which."""
+    from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
+
+    def keys(*extra):
+        argv = ["--preset", "cpu_plateau", "--tasks", "basketball", "--methods", "focal,focal_pc",
+                "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work"), *extra]
+        return sorted(s.key for s in build_specs(parse_args(argv))[0])
+
+    assert keys() == ["basketball|focal_pc|0", "basketball|focal_pc|1",
+                      "basketball|focal|0", "basketball|focal|1", "basketball|focal|2"]
+    assert keys("--seeds", "2") == ["basketball|focal_pc|2", "basketball|focal|2"]
+    assert keys("--seeds", "2,0,1") == ["basketball|focal_pc|0", "basketball|focal_pc|2",
+                                        "basketball|focal|0", "basketball|focal|1", "basketball|focal|2"]
+
+
 def test_paired_difference_interval_and_counts():
     d = paired_difference([0.9, 0.8, 0.7, 0.6], [0.5, 0.8, 0.4, 0.7])
     diffs = np.array([0.4, 0.0, 0.3, -0.1])
@@ -182,6 +198,9 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| FocalPolicy (512-pt cloud) | 75.0 (1 seed) | 75.0 (1 seed) | 75.0 (1 seed) |" in report
     assert "| FocalPolicy | 65.0 ± 5.0 | 65.0 ± 5.0 |" in report
     assert "2 of the runs continued from a checkpoint after an interruption (LeRobot's resume; 3.0 min" in report
+    # cpu_plateau runs point clouds on 2 seeds: of its 16 runs here 2 are still to do (focal_pc seed 1).
+    assert "2 runs of the grid are still to do" in report
+    assert "seeds 0, 1 (FocalPolicy (512-pt cloud): 0, 1)." in report
     # Point clouds beside low-dim focal on the seeds both have (seed 0: 0.75 − 0.6), and against the paper.
     assert "| FocalPolicy (512-pt cloud) − FocalPolicy: the paper's 512-point cloud" in module
     goals = report[report.index("## Goals"):]

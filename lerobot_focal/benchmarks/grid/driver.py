@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ...console import doc_parser
 from .methods import resolve_method_phases
-from .presets import PRESETS
+from .presets import PRESETS, capped_seeds
 from .results import ResultsFile
 from .run import RunSpec, resumable_step
 
@@ -87,7 +87,8 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
 
     # Phase-major, then seed-major: a cut-short grid has whole phases, and within one whole seeds.
     specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset, m.obs_type), work)
-             for phase in phases for s in seeds for t in tasks for m in phase]
+             for phase in phases for s in seeds for t in tasks for m in phase
+             if s in capped_seeds(preset.seed_caps, m.name, seeds)]
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
                    "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],
                    "seeds": seeds}
@@ -130,8 +131,10 @@ def main(argv: list[str] | None = None) -> int:
     results = ResultsFile(args.out / "results.jsonl")
     done = results.ok()
     todo = [s for s in specs if s.key not in done]
+    capped = [f"{m} on {n}" for m, n in grid["preset"]["seed_caps"] if m in grid["methods"]]
     print(f"[grid] {len(specs)} runs ({len(grid['tasks'])} tasks x {len(grid['methods'])} methods x "
-          f"{len(grid['seeds'])} seeds), {len(specs) - len(todo)} already in {results.path}, {len(todo)} to do")
+          f"{len(grid['seeds'])} seeds" + (f"; {', '.join(capped)}" if capped else "") + "), "
+          f"{len(specs) - len(todo)} already in {results.path}, {len(todo)} to do")
     print(f"[grid] preset {grid['preset']['name']}: {grid['preset']['notes']}")
     if grid["overrides"]:
         print("[grid] overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()))

@@ -19,6 +19,7 @@ from ...figures import save_png
 from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
 from .methods import METHODS
 from .metrics import mean_curve, mean_std, paired_difference
+from .presets import capped_seeds
 from .results import ResultsFile
 
 PAPER_MARGIN = 10.0  # points: focal's top-5 within this of the paper on each task
@@ -258,12 +259,18 @@ def write_report(out_dir: Path) -> Path:
     label = {m: METHODS[m].label if m in METHODS else m for m in methods}
 
     md = [f"# Benchmark grid: preset `{preset['name']}`", "", preset["notes"], ""]
-    todo = len(grid["tasks"]) * len(grid["methods"]) * len(grid["seeds"]) - len(records)
+    caps = preset.get("seed_caps", ())  # absent from grids recorded before presets could cap a method's seeds
+
+    def grid_seeds(method: str) -> list[int]:
+        return capped_seeds(caps, method, grid["seeds"])
+
+    todo = len(grid["tasks"]) * sum(len(grid_seeds(m)) for m in grid["methods"]) - len(records)
     hours = sum(r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0) for r in records) / 3600
     md += [f"Wall time of the {len(records)} finished runs: {elapsed_s(records) / 3600:.1f} h during which the grid "
            f"had runs going ({hours:.1f} h of training and evaluation summed over the runs, which overlap with "
            "`--jobs` > 1; other work shared the machine)"
-           + (f"; {todo} runs of the grid are still to do (rerun the grid command to continue)." if todo > 0 else ".")
+           + (f"; {todo} {'run' if todo == 1 else 'runs'} of the grid {'is' if todo == 1 else 'are'} still to do "
+              "(rerun the grid command to continue)." if todo > 0 else ".")
            , ""]
     resumed = [r for r in records if r.get("resumed_from_steps")]
     if resumed:
@@ -272,7 +279,9 @@ def write_report(out_dir: Path) -> Path:
                "redone and is not counted above); their records list the steps they resumed from.", ""]
     if grid.get("overrides"):
         md += ["Overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()), ""]
-    md += [f"{len(records)} runs: tasks {', '.join(tasks)}; seeds {', '.join(map(str, grid['seeds']))}. "
+    capped = "".join(f" ({label.get(m, m)}: {', '.join(map(str, grid_seeds(m)))})" for m, _ in caps
+                     if m in grid["methods"])
+    md += [f"{len(records)} runs: tasks {', '.join(tasks)}; seeds {', '.join(map(str, grid['seeds']))}{capped}. "
            f"Score = mean of the top-{preset['top_k']} of {preset['steps'] // preset['eval_every']} evaluations "
            f"({preset['eval_episodes']} episodes every {preset['eval_every']} steps), then mean ± std over seeds "
            f"(success in %; one evaluation episode is {100 / preset['eval_episodes']:.0f} points); a cell that "
@@ -287,7 +296,7 @@ def write_report(out_dir: Path) -> Path:
         rows.append("| Method | " + " | ".join(tasks) + " | Average |")
         rows.append("|---|" + "---|" * (len(tasks) + 1))
         for m in methods:
-            n_seeds = len(grid["seeds"])
+            n_seeds = len(grid_seeds(m))
             cells = [_cell(*agg[m][t][key], len(agg[m][t]["seeds"]), n_seeds, scale, digits) if t in agg[m]
                      else "–" for t in tasks]
             per_seed = _task_average_per_seed(records, m, tasks, key)
