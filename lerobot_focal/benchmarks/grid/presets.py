@@ -135,7 +135,7 @@ PRESETS: dict[str, GridPreset] = {
         num_threads=1,
         focal_encoder_dim=64,
         final_episodes=50,
-        # focal on 512-point clouds: a run costs 6-8x a low-dimensional one here (ray casting, the encoder).
+        # focal on 512-point clouds: a run costs 5-10x a low-dimensional one on a CPU (ray casting, the encoder).
         seed_caps=(("focal_pc", 2),),
         notes=(
             "CPU preset at the plateau budget: 10 full-length expert demos per task (DP3's collection: 200 steps, "
