@@ -163,6 +163,34 @@ def test_method_phases_order_the_plateau_grid():
     assert "--policy.use_env_state=false" in METHODS["focal_pc"].train_args(PRESETS["cpu_plateau"])
 
 
+def test_a_results_directory_grows_by_invocations_and_refuses_other_settings(tmp_path):
+    """Another method or seed into the same --out: grid.json (what the report reads) records every invocation's
+    runs. Another preset or override would mix incomparable runs under one key: refused before anything runs,
+    and grid.json is left as it was."""
+    from lerobot_focal.benchmarks.grid.driver import build_specs, main, merged_grid, parse_args
+
+    def argv(*extra):
+        return ["--preset", "cpu_plateau", "--tasks", "pick-place", "--out", str(tmp_path),
+                "--work", str(tmp_path / "work"), *extra]
+
+    first = build_specs(parse_args(argv("--methods", "focal", "--seeds", "0", "--demos", "30")))[1]
+    first = json.loads(json.dumps(first, default=str))  # as grid.json holds it
+    second = build_specs(parse_args(argv("--methods", "diffusion|focal", "--seeds", "1,0", "--demos", "30")))[1]
+    merged = merged_grid(first, second, tmp_path)
+    assert merged["methods"] == ["focal", "diffusion"] and merged["phases"] == [["focal"], ["diffusion"]]
+    assert merged["seeds"] == [0, 1] and merged["tasks"] == ["pick-place"] and merged["overrides"] == {"demos": 30}
+    assert merged_grid(None, second, tmp_path) == second
+
+    (tmp_path / "grid.json").write_text(json.dumps(first))
+    before = (tmp_path / "grid.json").read_text()
+    with pytest.raises(SystemExit, match=r"other settings \(--demos: 30 there, None now\).*Use another --out"):
+        main(argv("--methods", "diffusion", "--seeds", "0", "--dry-run"))
+    with pytest.raises(SystemExit, match="preset name: 'cpu_plateau' there, 'cpu' now"):
+        main(argv("--methods", "diffusion", "--seeds", "0", "--demos", "30", "--dry-run")[2:] + ["--preset", "cpu"])
+    assert (tmp_path / "grid.json").read_text() == before
+    assert main(argv("--methods", "diffusion", "--seeds", "0", "--demos", "30", "--dry-run")) == 0
+
+
 def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     from lerobot_focal.benchmarks.grid.report import write_report
 

@@ -13,6 +13,7 @@ line and retries failed ones; ``lerobot-focal-bench report --out DIR`` re-render
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -97,8 +98,6 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
 def specs_of_grid(out: Path, work: Path) -> dict[str, RunSpec]:
     """The runs of the grid whose ``grid.json`` is in ``out``, by run key, rebuilt as its invocation built them
     (preset, overrides, tasks, methods, seeds): what tools that revisit a finished grid's runs start from."""
-    import json
-
     grid = json.loads((out / "grid.json").read_text())
     args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
                        ",".join(grid["methods"]), "--out", str(out), "--work", str(work),
@@ -106,6 +105,48 @@ def specs_of_grid(out: Path, work: Path) -> dict[str, RunSpec]:
     for key, value in grid.get("overrides", {}).items():  # as the grid's parse_args gave them (JSON: list → tuple)
         setattr(args, key, tuple(value) if isinstance(value, list) else value)
     return {s.key: s for s in build_specs(args)[0]}
+
+
+#: Preset fields that do not change what a run measures, left out when two invocations' presets are compared.
+_DESCRIPTIVE_PRESET_FIELDS = ("notes",)
+
+
+def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
+    """The grid that ``out/grid.json`` records once this invocation has run: the union of every invocation's.
+
+    Runs are keyed by task, method and seed only, so a results directory grows one invocation at a time (another
+    method, another seed) and its report covers them all. Invocations with another preset or other overrides
+    would mix runs that measure different things under one key, so they are refused; nothing is written then.
+    """
+    if previous is None:
+        return grid
+
+    def canonical(value):  # tuples and lists alike, as grid.json stores them
+        return json.loads(json.dumps(value, default=str))
+
+    old_preset, new_preset = canonical(previous.get("preset", {})), canonical(grid["preset"])
+    old_over, new_over = canonical(previous.get("overrides", {})), canonical(grid["overrides"])
+    differing = [(f"--{k.replace('_', '-')}", old_over.get(k), new_over.get(k))
+                 for k in sorted(old_over.keys() | new_over.keys()) if old_over.get(k) != new_over.get(k)]
+    differing += [(f"preset {k}", old_preset[k], new_preset[k])
+                  for k in sorted(old_preset.keys() & new_preset.keys())
+                  if k not in _DESCRIPTIVE_PRESET_FIELDS + ("overridden",) + tuple(old_over) + tuple(new_over)
+                  and old_preset[k] != new_preset[k]]
+    if differing:
+        shown = "; ".join(f"{name}: {old!r} there, {new!r} now" for name, old, new in differing)
+        raise SystemExit(
+            f"{out} holds a grid run with other settings ({shown}). Its runs are keyed by task, method and seed "
+            f"only, so new runs would be mixed with those. Use another --out, or the preset and overrides that "
+            f"{out / 'grid.json'} records.")
+
+    def union(a: list, b: list) -> list:
+        return list(a) + [x for x in b if x not in a]
+
+    methods = union(previous["methods"], grid["methods"])
+    old_phases = previous.get("phases", [previous["methods"]])
+    new_phases = [[m for m in phase if m not in previous["methods"]] for phase in grid["phases"]]
+    return {**grid, "tasks": union(previous["tasks"], grid["tasks"]), "methods": methods,
+            "phases": [p for p in old_phases + new_phases if p], "seeds": union(previous["seeds"], grid["seeds"])}
 
 
 def _stop_on_signals() -> None:
@@ -127,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     _stop_on_signals()
     args = parse_args(argv)
     specs, grid = build_specs(args)
+    grid_file = args.out / "grid.json"
+    recorded = merged_grid(json.loads(grid_file.read_text()) if grid_file.exists() else None, grid, args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     results = ResultsFile(args.out / "results.jsonl")
     done = results.ok()
@@ -146,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         for s in todo:
             print("  ", s.key + (f" (continues from step {resumable[s.key]})" if s.key in resumable else ""))
         return 0
-    (args.out / "grid.json").write_text(__import__("json").dumps(grid, indent=2, default=str))
+    grid_file.write_text(json.dumps(recorded, indent=2, default=str))
 
     from tqdm import tqdm
 
