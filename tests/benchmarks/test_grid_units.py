@@ -122,6 +122,9 @@ def test_overridden_presets_get_their_own_run_folders_and_share_data_only_when_t
     assert fewer.data.train_root != plain.data.train_root and fewer.run_dir != plain.run_dir
     assert grid["overrides"] == {"down_dims": (64, 128, 256)}
     assert "--policy.down_dims=[64,128,256]" in METHODS["focal"].train_args(wide.preset)
+    slow, _ = spec("--lr", "1e-4")  # every method's learning rate; the demos stay the preset's
+    assert slow.run_dir.parts[-4] == "cpu_plateau+lr=0.0001" and slow.data == plain.data
+    assert "--policy.optimizer_lr=0.0001" in METHODS["diffusion"].train_args(slow.preset)
 
 
 def test_a_capped_method_runs_the_first_seeds_of_the_grid(tmp_path):

@@ -51,6 +51,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                  "final_episodes"):
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
+    p.add_argument("--lr", type=float, default=None, help="override the preset's learning rate (every method)")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
@@ -73,7 +74,7 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     overrides = {k: v for k, v in dict(
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
-        final_episodes=args.final_episodes, down_dims=args.down_dims,
+        final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:
