@@ -41,6 +41,8 @@ from lerobot_focal.datasets import commit_log
 
 STATE_FILE = "focal_collect_state.json"
 VALID_OBS = ("state", "pointcloud", "pixels", "env_state")
+#: Without --max_attempts, a task gets this many reset seeds per wanted episode before collection gives up.
+ATTEMPTS_PER_EPISODE = 3
 
 
 @dataclass
@@ -61,7 +63,7 @@ class CollectConfig:
 
     @property
     def attempts_limit(self) -> int:
-        return self.max_attempts if self.max_attempts is not None else 3 * self.episodes
+        return self.max_attempts if self.max_attempts is not None else ATTEMPTS_PER_EPISODE * self.episodes
 
 
 def dataset_features(cfg: CollectConfig) -> dict[str, dict]:

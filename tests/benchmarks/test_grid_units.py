@@ -122,6 +122,11 @@ def test_overridden_presets_get_their_own_run_folders_and_share_data_only_when_t
     assert fewer.data.train_root != plain.data.train_root and fewer.run_dir != plain.run_dir
     assert grid["overrides"] == {"down_dims": (64, 128, 256)}
     assert "--policy.down_dims=[64,128,256]" in METHODS["focal"].train_args(wide.preset)
+    other_demos, _ = spec("--demo-seed", "2000")  # another draw of placements: its own data and runs
+    assert other_demos.data.train_root != plain.data.train_root and other_demos.run_dir != plain.run_dir
+    assert other_demos.preset.demo_seed == 2000 and plain.preset.demo_seed == 1000
+    with pytest.raises(SystemExit, match=r"keep them in \[1000, 100000\)"):
+        spec("--demo-seed", "10")  # would collect demos on the periodic evaluation's placements
     slow, _ = spec("--lr", "1e-4")  # every method's learning rate; the demos stay the preset's
     assert slow.run_dir.parts[-4] == "cpu_plateau+lr=0.0001" and slow.data == plain.data
     assert "--policy.optimizer_lr=0.0001" in METHODS["diffusion"].train_args(slow.preset)
@@ -277,14 +282,15 @@ def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
 
 def test_demo_heldout_and_evaluation_seeds_never_overlap():
     """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
-    from lerobot_focal.benchmarks.grid.datasets import DEMO_SEED, HELDOUT_SEED
+    from lerobot_focal.benchmarks.grid.datasets import HELDOUT_SEED
+    from lerobot_focal.datasets.collect import ATTEMPTS_PER_EPISODE
     from lerobot_focal.benchmarks.grid.expert_gap import EXPERT_GAP_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
 
     for preset in PRESETS.values():
         periodic = {s + i for s in preset.seeds for i in range(preset.eval_episodes)}  # lerobot-train's own seeds
-        demos = set(range(DEMO_SEED, DEMO_SEED + 3 * preset.demos))  # collection tries up to 3x the demos
-        heldout = set(range(HELDOUT_SEED, HELDOUT_SEED + 3 * preset.heldout_demos))
+        demos = set(range(preset.demo_seed, preset.demo_seed + ATTEMPTS_PER_EPISODE * preset.demos))
+        heldout = set(range(HELDOUT_SEED, HELDOUT_SEED + ATTEMPTS_PER_EPISODE * preset.heldout_demos))
         final = {FINAL_EVAL_SEED + 1000 * s + i for s in preset.seeds for i in range(preset.final_episodes)}
         gap = {EXPERT_GAP_SEED + 1000 * s + i for s in preset.seeds for i in range(100)}  # expert_gap's episodes
         sets = [periodic, demos, heldout, final, gap]

@@ -2,9 +2,10 @@
 
 Both come from `lerobot-focal-collect` (MetaWorld's scripted experts; full-length episodes kept when successful
 on ≥ 5 steps, as DP3 collects them). One pair per observation type a method of the grid reads. Training
-demos use seeds from ``DEMO_SEED``, never those of LeRobot's periodic evaluation; held-out episodes use seeds
-far from both (``HELDOUT_SEED``) so the open-loop metrics see unseen object placements. Collection resumes, so
-a grid interrupted while collecting completes the datasets on its next run.
+demos use seeds from the preset's ``demo_seed`` (`presets.DEMO_SEED` unless overridden), never those of
+LeRobot's periodic evaluation; held-out episodes use seeds far from both (``HELDOUT_SEED``) so the open-loop
+metrics see unseen object placements. Collection resumes, so a grid interrupted while collecting completes the
+datasets on its next run.
 Runs on a cluster read these paths: put ``--work`` on a filesystem every node sees.
 """
 
@@ -17,15 +18,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .presets import GridPreset
+from .presets import DEMO_SEED_END, GridPreset
 from .processes import run_logged
 
-#: Reset seeds of the training demos. LeRobot's periodic evaluation inside `lerobot-train` resets its envs with
-#: seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and a
-#: MetaWorld reset seed fixes the object and goal positions: demos collected from seeds 0, 1, … would put the
-#: training configurations into every evaluation. The demos start far above them.
-DEMO_SEED = 1_000
-HELDOUT_SEED = 100_000
+HELDOUT_SEED = DEMO_SEED_END
 #: Names the envs' point-cloud recipe in the folder of cached point-cloud demos. Change it with the recipe (crop
 #: box, table crop, point count), so that demos cached by an earlier version are never trained on beside clouds
 #: from today's evaluation env. "tablefree-sites": the table top and its rim are cropped away, and the clouds
@@ -90,7 +86,7 @@ def collect_task_data(data: TaskData, preset: GridPreset, obs_type: str | None, 
     log_dir.mkdir(parents=True, exist_ok=True)
     with open(log_dir / f".collect_{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, DEMO_SEED),
+        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, preset.demo_seed),
                                               (data.heldout_root, data.heldout_repo_id, preset.heldout_demos,
                                                HELDOUT_SEED)):
             if _complete(root, episodes):

@@ -20,8 +20,9 @@ import time
 from pathlib import Path
 
 from ...console import doc_parser
+from ...datasets.collect import ATTEMPTS_PER_EPISODE
 from .methods import resolve_method_phases
-from .presets import PRESETS, capped_seeds
+from .presets import DEMO_SEED, DEMO_SEED_END, PRESETS, capped_seeds
 from .results import ResultsFile
 from .run import RunSpec, resumable_step
 
@@ -52,6 +53,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
     p.add_argument("--lr", type=float, default=None, help="override the preset's learning rate (every method)")
+    p.add_argument("--demo-seed", dest="demo_seed", type=int, default=None,
+                   help=f"first reset seed of the training demos (default {DEMO_SEED}): another set of placements")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
@@ -74,11 +77,17 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     overrides = {k: v for k, v in dict(
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
-        final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr,
+        final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
+    last_demo_seed = preset.demo_seed + ATTEMPTS_PER_EPISODE * preset.demos  # as many as collection may try
+    if not DEMO_SEED <= preset.demo_seed or last_demo_seed > DEMO_SEED_END:
+        raise SystemExit(
+            f"--demo-seed {preset.demo_seed} with {preset.demos} demos may use reset seeds up to {last_demo_seed}; "
+            f"keep them in [{DEMO_SEED}, {DEMO_SEED_END}), clear of the evaluation and held-out seeds "
+            f"(e.g. --demo-seed {DEMO_SEED + 1000})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
                                for t in g))
     phases = resolve_method_phases(args.methods)

@@ -17,6 +17,15 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 
+#: Reset seeds of the training demos start here. LeRobot's periodic evaluation inside `lerobot-train` resets its
+#: envs with seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and
+#: a MetaWorld reset seed fixes the object and goal positions: demos collected from seeds 0, 1, … would put the
+#: training configurations into every evaluation. The demos start far above them.
+DEMO_SEED = 1_000
+#: Demo seeds must stay in [DEMO_SEED, DEMO_SEED_END): below the held-out, final-evaluation and expert-gap seeds.
+DEMO_SEED_END = 100_000
+
+
 @dataclass(frozen=True)
 class GridPreset:
     name: str
@@ -48,6 +57,9 @@ class GridPreset:
     # method whose runs cost several times the others' (point clouds on a CPU), so that a complete grid stays
     # affordable; `--seeds` still chooses which seeds those first n are.
     seed_caps: tuple[tuple[str, int], ...] = ()
+    # First reset seed of the training demos (a MetaWorld reset seed fixes the object and goal placement). Every
+    # training seed of a grid learns from the same demos; another value draws another set of placements.
+    demo_seed: int = DEMO_SEED
 
     # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
     overridden: tuple[str, ...] = ()
@@ -83,7 +95,7 @@ def capped_seeds(seed_caps: Iterable[Sequence], method: str, seeds: Sequence[int
 
 
 #: The fields the collected datasets depend on (besides the observation types, which name their own folders).
-DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state")
+DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state", "demo_seed")
 
 
 def _folder_value(v: object) -> str:
