@@ -283,9 +283,9 @@ def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
 def test_demo_heldout_and_evaluation_seeds_never_overlap():
     """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
     from lerobot_focal.benchmarks.grid.datasets import HELDOUT_SEED
-    from lerobot_focal.datasets.collect import ATTEMPTS_PER_EPISODE
     from lerobot_focal.benchmarks.grid.expert_gap import EXPERT_GAP_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
+    from lerobot_focal.datasets.collect import ATTEMPTS_PER_EPISODE
 
     for preset in PRESETS.values():
         periodic = {s + i for s in preset.seeds for i in range(preset.eval_episodes)}  # lerobot-train's own seeds

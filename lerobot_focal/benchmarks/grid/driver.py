@@ -82,10 +82,11 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
-    last_demo_seed = preset.demo_seed + ATTEMPTS_PER_EPISODE * preset.demos  # as many as collection may try
-    if not DEMO_SEED <= preset.demo_seed or last_demo_seed > DEMO_SEED_END:
+    demo_seeds_end = preset.demo_seed + ATTEMPTS_PER_EPISODE * preset.demos  # as many as collection may try
+    if not DEMO_SEED <= preset.demo_seed or demo_seeds_end > DEMO_SEED_END:
         raise SystemExit(
-            f"--demo-seed {preset.demo_seed} with {preset.demos} demos may use reset seeds up to {last_demo_seed}; "
+            f"--demo-seed {preset.demo_seed} with {preset.demos} demos may use reset seeds {preset.demo_seed} to "
+            f"{demo_seeds_end - 1}; "
             f"keep them in [{DEMO_SEED}, {DEMO_SEED_END}), clear of the evaluation and held-out seeds "
             f"(e.g. --demo-seed {DEMO_SEED + 1000})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
