@@ -197,6 +197,10 @@ def test_a_results_directory_grows_by_invocations_and_refuses_other_settings(tmp
         main(argv("--methods", "diffusion", "--seeds", "0", "--demos", "30", "--dry-run")[2:] + ["--preset", "cpu"])
     assert (tmp_path / "grid.json").read_text() == before
     assert main(argv("--methods", "diffusion", "--seeds", "0", "--demos", "30", "--dry-run")) == 0
+    fresh = tmp_path / "fresh"
+    assert main(["--preset", "cpu_plateau", "--tasks", "pick-place", "--methods", "focal", "--out", str(fresh),
+                 "--work", str(tmp_path / "work"), "--dry-run"]) == 0
+    assert not fresh.exists()  # a dry run writes nothing
 
 
 def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):

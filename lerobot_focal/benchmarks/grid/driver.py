@@ -181,7 +181,6 @@ def main(argv: list[str] | None = None) -> int:
     specs, grid = build_specs(args)
     grid_file = args.out / "grid.json"
     recorded = merged_grid(json.loads(grid_file.read_text()) if grid_file.exists() else None, grid, args.out)
-    args.out.mkdir(parents=True, exist_ok=True)
     results = ResultsFile(args.out / "results.jsonl")
     done = results.ok()
     todo = [s for s in specs if s.key not in done]
@@ -200,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         for s in todo:
             print("  ", s.key + (f" (continues from step {resumable[s.key]})" if s.key in resumable else ""))
         return 0
+    args.out.mkdir(parents=True, exist_ok=True)  # not before: a dry run leaves no empty results folder behind
     grid_file.write_text(json.dumps(recorded, indent=2, default=str))
 
     from tqdm import tqdm
