@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from lerobot.envs.configs import EnvConfig
@@ -65,6 +66,20 @@ def resolve_metaworld_tasks(task: str) -> dict[str, list[str]]:
     return out
 
 
+def recorded_seeded_episodes(path: str | Path) -> int:
+    """Episodes with a reset seed in an env's metrics file (autoreset episodes, seedless, are not evaluations)."""
+    path = Path(path)
+    if not path.exists():
+        return 0
+    count = 0
+    for line in path.read_text().splitlines():
+        try:
+            count += json.loads(line).get("seed") is not None
+        except json.JSONDecodeError:  # a line torn by an interruption
+            continue
+    return count
+
+
 @EnvConfig.register_subclass("focal_metaworld")
 @dataclass
 class FocalMetaworldEnvConfig(FocalSimEnvConfig):
@@ -90,6 +105,13 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     # ~70 % of a benchmark run's time. The benchmark grid turns it off; simulation and metrics are unchanged.
     render_videos: bool = True
     multitask_eval: bool = True
+    # Fresh placements at every evaluation, as DP3's runner draws them: None = LeRobot's reset seeds as given
+    # (`lerobot-train` resets each evaluation with the same seeds --seed … --seed + N − 1). Set, each set of envs
+    # built for an evaluation adds this plus the number of evaluation episodes already recorded in
+    # ``metrics_path`` to every reset seed, so evaluation i of a run uses seeds fresh_reset_seeds + i·N + --seed …;
+    # the count comes from the file (not a counter in the process) so that a run resumed from a checkpoint, whose
+    # file the grid cuts back to that checkpoint, continues with new placements instead of replaying the first.
+    fresh_reset_seeds: int | None = None
 
     EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("env_state", "camera_pos", "render_videos", "table_clearance")
 
@@ -112,6 +134,15 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
 
     def task_groups(self) -> dict[str, list[str]]:
         return self.tasks_by_group
+
+    def _env_factory(self, task: str):
+        if self.fresh_reset_seeds is None:
+            return super()._env_factory(task)
+        if not self.metrics_path:
+            raise ValueError("fresh_reset_seeds counts the evaluation episodes recorded in metrics_path: set both")
+        offset = self.fresh_reset_seeds + recorded_seeded_episodes(self.metrics_path)
+        cls, kwargs = self.env_class(), {**self.gym_kwargs, "reset_seed_offset": offset}
+        return lambda: cls(task=task, **kwargs)
 
     def env_class(self) -> type[FocalMetaworldEnv]:
         from .metaworld_env import FocalMetaworldEnv

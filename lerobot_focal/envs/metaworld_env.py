@@ -117,8 +117,12 @@ class FocalMetaworldEnv(MetaworldEnv):
         env_state: bool = False,
         render_videos: bool = True,
         table_clearance: float | None = DEFAULT_TABLE_CLEARANCE,
+        reset_seed_offset: int = 0,
     ) -> None:
         check_obs_type(obs_type)
+        # Added to every reset seed (placements): lets one evaluation draw other placements than the last one
+        # although LeRobot resets with the same seeds each time (see FocalMetaworldEnvConfig.fresh_reset_seeds).
+        self.reset_seed_offset = reset_seed_offset
         # LeRobot's constructor only accepts its own pixel obs types; build as "pixels", then take over.
         super().__init__(
             task=task,
@@ -249,6 +253,8 @@ class FocalMetaworldEnv(MetaworldEnv):
         return obs
 
     def reset(self, seed: int | None = None, **kwargs) -> tuple[dict[str, Any], dict[str, Any]]:
+        if seed is not None:
+            seed += self.reset_seed_offset  # the seed recorded below is the one that placed the objects
         observation, info = super().reset(seed=seed, **kwargs)
         self.metrics.start(seed)
         self.object_grasped = False

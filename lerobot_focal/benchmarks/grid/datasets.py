@@ -18,8 +18,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .presets import DEMO_SEED_END, GridPreset
+from .presets import DEMO_SEED, DEMO_SEED_END, GridPreset
 from .processes import run_logged
+from .seeds import demo_seed_of
 
 HELDOUT_SEED = DEMO_SEED_END
 #: Names the envs' point-cloud recipe in the folder of cached point-cloud demos. Change it with the recipe (crop
@@ -38,6 +39,7 @@ class TaskData:
     train_repo_id: str
     heldout_root: Path
     heldout_repo_id: str
+    demo_seed: int = DEMO_SEED  # first reset seed of the training demos
 
 
 def obs_types(preset: GridPreset, obs_type: str | None = None) -> str:
@@ -48,12 +50,18 @@ def obs_types(preset: GridPreset, obs_type: str | None = None) -> str:
     return ",".join(types)
 
 
-def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None) -> TaskData:
+def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None, seed: int = 0) -> TaskData:
+    """Where a run of training seed ``seed`` finds its demos. With ``demos_per_seed`` each seed's training set is
+    named by its first demo seed (``train-demos<first>``), so two seeds, or two presets with other demo seeds,
+    never read each other's demos; the held-out set is shared."""
     obs_type = obs_type or preset.obs_type
     base = work / "data" / preset.data_folder / task
     if obs_type != preset.obs_type:
         base = base / (f"{obs_type}-{CLOUD_RECIPE}" if obs_type == "pointcloud" else obs_type)
-    return TaskData(task, base / "train", f"local/{task}_train", base / "heldout", f"local/{task}_heldout")
+    first = demo_seed_of(preset, seed)
+    train, repo = (("train", f"local/{task}_train") if not preset.demos_per_seed
+                   else (f"train-demos{first}", f"local/{task}_train_demos{first}"))
+    return TaskData(task, base / train, repo, base / "heldout", f"local/{task}_heldout", first)
 
 
 def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, preset: GridPreset, log: Path,
@@ -73,20 +81,23 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         )
 
 
-def ensure_task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None) -> TaskData:
+def ensure_task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = None,
+                     seed: int = 0) -> TaskData:
     """Collect (or complete) the task's training and held-out datasets under ``work``."""
-    return collect_task_data(task_data(work, task, preset, obs_type), preset, obs_type, work / "logs")
+    return collect_task_data(task_data(work, task, preset, obs_type, seed), preset, obs_type, work / "logs")
 
 
 def collect_task_data(data: TaskData, preset: GridPreset, obs_type: str | None, log_dir: Path) -> TaskData:
     """Called by every run before it trains: the first run of a (task, obs type) collects, later ones find the
     data complete; a lock file keeps concurrent runs from writing the same dataset twice."""
     name = f"{preset.data_folder}_{data.task}_{obs_type or preset.obs_type}"
+    if preset.demos_per_seed:
+        name += f"_demos{data.demo_seed}"
     log = log_dir / f"collect_{name}.log"
     log_dir.mkdir(parents=True, exist_ok=True)
     with open(log_dir / f".collect_{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, preset.demo_seed),
+        for root, repo_id, episodes, seed in ((data.train_root, data.train_repo_id, preset.demos, data.demo_seed),
                                               (data.heldout_root, data.heldout_repo_id, preset.heldout_demos,
                                                HELDOUT_SEED)):
             if _complete(root, episodes):

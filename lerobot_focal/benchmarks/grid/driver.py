@@ -20,11 +20,11 @@ import time
 from pathlib import Path
 
 from ...console import doc_parser
-from ...datasets.collect import ATTEMPTS_PER_EPISODE
 from .methods import resolve_method_phases
-from .presets import DEMO_SEED, DEMO_SEED_END, PRESETS, capped_seeds
+from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, capped_seeds
 from .results import ResultsFile
 from .run import RunSpec, resumable_step
+from .seeds import RESCORE_BLOCKS, check_seed_ranges
 
 DEV_TASKS = "pick-place,sweep-into,disassemble,push-wall,basketball"
 
@@ -55,10 +55,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--lr", type=float, default=None, help="override the preset's learning rate (every method)")
     p.add_argument("--demo-seed", dest="demo_seed", type=int, default=None,
                    help=f"first reset seed of the training demos (default {DEMO_SEED}): another set of placements")
+    p.add_argument("--periodic-eval", dest="periodic_eval", choices=PERIODIC_EVALS, default=None,
+                   help="override the preset's periodic evaluations: 'fixed' (the same placements every time, "
+                        "LeRobot's default) or 'fresh' (new ones at every evaluation and seed, as DP3's runner)")
+    p.add_argument("--demos-per-seed", dest="demos_per_seed", default=None, type=_bool,
+                   help="override the preset's demos_per_seed (true: every training seed its own demos)")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
     return p.parse_args(argv)
+
+
+def _bool(text: str) -> bool:
+    if text.lower() not in ("true", "false"):
+        raise argparse.ArgumentTypeError(f"expected true or false; got {text!r}")
+    return text.lower() == "true"
 
 
 def _int_tuple(text: str) -> tuple[int, ...]:
@@ -78,27 +89,23 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
         final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
+        periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
-    demo_seeds_end = preset.demo_seed + ATTEMPTS_PER_EPISODE * preset.demos  # as many as collection may try
-    if not DEMO_SEED <= preset.demo_seed or demo_seeds_end > DEMO_SEED_END:
-        raise SystemExit(
-            f"--demo-seed {preset.demo_seed} with {preset.demos} demos may use reset seeds {preset.demo_seed} to "
-            f"{demo_seeds_end - 1}; "
-            f"keep them in [{DEMO_SEED}, {DEMO_SEED_END}), clear of the evaluation and held-out seeds "
-            f"(e.g. --demo-seed {DEMO_SEED + 1000})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
                                for t in g))
     phases = resolve_method_phases(args.methods)
     methods = [m for phase in phases for m in phase]
     seeds = [int(s) for s in args.seeds.split(",")] if args.seeds else list(preset.seeds)
+    # Demos, held-out demos, periodic and final evaluations, expert_gap and re-score never share a reset seed.
+    check_seed_ranges(preset, seeds, rescore_episodes=RESCORE_BLOCKS * preset.eval_episodes)
     work = (args.work or Path("outputs/bench")).resolve()
     from .datasets import task_data
 
     # Phase-major, then seed-major: a cut-short grid has whole phases, and within one whole seeds.
-    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset, m.obs_type), work)
+    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset, m.obs_type, s), work)
              for phase in phases for s in seeds for t in tasks for m in phase
              if s in capped_seeds(preset.seed_caps, m.name, seeds)]
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,

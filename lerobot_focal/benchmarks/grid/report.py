@@ -23,7 +23,8 @@ from .presets import capped_seeds
 from .results import ResultsFile
 
 PAPER_MARGIN = 10.0  # points: focal's top-5 within this of the paper on each task
-METRIC_KEYS = ("success_top_k", "success_final", "success_fresh", "atv", "atv_fresh", "ts_score",
+METRIC_KEYS = ("success_top_k", "success_top_k_paper", "success_top_k_fixed", "success_rescore_mean",
+               "success_final", "success_fresh", "atv", "atv_fresh", "ts_score",
                "compounding_error", "latency_ms", "nfe", "wall_s", "final_eval_s", "update_s_per_step")
 
 
@@ -43,6 +44,31 @@ def _cell(mean: float, std: float, n: int, n_grid_seeds: int, scale: float, digi
         return _fmt(mean, std, scale=scale, digits=digits)
     text = _fmt(mean, std if n > 1 else None, scale=scale, digits=digits)
     return text if text == "–" else f"{text} ({n} seed{'s' if n > 1 else ''})"
+
+
+def with_estimators(records: list[dict], rescored: dict[str, dict]) -> list[dict]:
+    """Each record with the paper's estimator and today's beside each other (see docs/benchmarks.md).
+
+    ``success_top_k_paper``: top-k of periodic evaluations on fresh placements (a run with ``periodic_eval``
+    "fresh": DP3's runner), else top-k of the re-score's blocks of the final checkpoint when ``rescore.json``
+    has the run, else absent. ``success_top_k_fixed``: top-k of periodic evaluations on the same placements every
+    time, which a "fresh" run does not have (n/a: evaluating both ways would double the evaluation cost).
+    ``success_rescore_mean``: the re-score's mean over all its episodes."""
+    out = []
+    for r in records:
+        r = dict(r)
+        fresh = r.get("periodic_eval") == "fresh"
+        again = rescored.get(r["key"])
+        if fresh:
+            r["success_top_k_paper"] = r["success_top_k"]
+        elif again:
+            r["success_top_k_paper"] = again["top_k"]
+        if not fresh:
+            r["success_top_k_fixed"] = r["success_top_k"]
+        if again:
+            r["success_rescore_mean"] = again["mean"]
+        out.append(r)
+    return out
 
 
 def aggregate(records: list[dict]) -> dict:
@@ -195,6 +221,34 @@ def _goals(records: list[dict], tasks: list[str], methods: list[str], label: dic
     return lines
 
 
+def _estimators_table(records: list[dict], tasks: list[str], methods: list[str], label: dict, preset: dict) -> list[str]:
+    """One cell per method and task with the three numbers side by side (means over seeds, in %)."""
+    k = preset["top_k"]
+
+    def cell(runs: list[dict]) -> str:
+        vals = [mean_std([r.get(key, math.nan) for r in runs])[0]
+                for key in ("success_top_k_paper", "success_top_k_fixed", "success_fresh")]
+        return " / ".join("n/a" if math.isnan(v) else f"{v * 100:.1f}" for v in vals)
+
+    rows = ["## Three estimators: paper's top-5 / fixed-episode top-5 / final checkpoint on fresh episodes (%)", "",
+            f"Per cell, means over seeds: top-{k} with fresh placements at every evaluation (the paper's estimator, "
+            "DP3's runner; for a grid whose periodic evaluations reuse their placements, top-"
+            f"{k} of the re-score's blocks of the final checkpoint, `lerobot-focal-bench rescore`), top-{k} of "
+            "periodic evaluations on the same placements every time (n/a for runs evaluated on fresh placements), "
+            "and the final checkpoint on fresh episodes. n/a: not measured.", "",
+            "| Method | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
+    for m in methods:
+        cells = [cell(runs) if (runs := [r for r in records if r["method"] == m and r["task"] == t]) else "–"
+                 for t in tasks]
+        rows.append(f"| {label[m]} | " + " | ".join(cells) + " |")
+    rescored = [r for r in records if "success_rescore_mean" in r]
+    if rescored:
+        rows += ["", f"The re-score's mean over all its episodes (same checkpoints): "
+                 + ", ".join(f"{r['key'].replace('|', ' · ')} {r['success_rescore_mean'] * 100:.1f}"
+                             for r in sorted(rescored, key=lambda r: r["key"]))]
+    return rows + [""]
+
+
 def summary_table(records: list[dict], grid: dict) -> dict:
     """Per method and task: the protocol's numbers in one flat record (summary.json's "methods")."""
     preset = grid["preset"]
@@ -205,9 +259,17 @@ def summary_table(records: list[dict], grid: dict) -> dict:
             if not runs:
                 continue
             top5, top5_std = mean_std([r["success_top_k"] for r in runs])
+            paper, paper_std = mean_std([r.get("success_top_k_paper", math.nan) for r in runs])
+            fixed, fixed_std = mean_std([r.get("success_top_k_fixed", math.nan) for r in runs])
             fresh, fresh_std = mean_std([r.get("success_fresh", math.nan) for r in runs])
             out.setdefault(m, {})[t] = {
                 "top5_mean": top5, "top5_std": top5_std,
+                # The paper's estimator (fresh placements at every evaluation, or the re-score's blocks) and
+                # today's top-5 on the same placements at every evaluation (None where a run has no such number).
+                "top5_paper_mean": paper, "top5_paper_std": paper_std,
+                "top5_fixed_mean": fixed, "top5_fixed_std": fixed_std,
+                "periodic_eval": sorted({r.get("periodic_eval", "fixed") for r in runs}),
+                "rescore_mean": mean_std([r.get("success_rescore_mean", math.nan) for r in runs])[0],
                 "final_mean": fresh, "final_std": fresh_std,
                 "last_eval_mean": mean_std([r["success_final"] for r in runs])[0],
                 "n_evals": len(runs[0]["curve"]), "episodes_per_eval": preset["eval_episodes"],
@@ -250,6 +312,8 @@ def write_report(out_dir: Path) -> Path:
     grid = json.loads((out_dir / "grid.json").read_text())
     records = list(ResultsFile(out_dir / "results.jsonl").ok().values())
     records = [r for r in records if r["task"] in grid["tasks"] and r["method"] in grid["methods"]]
+    rescore_path = out_dir / "rescore.json"
+    records = with_estimators(records, json.loads(rescore_path.read_text()) if rescore_path.exists() else {})
     failed = [r for r in ResultsFile(out_dir / "results.jsonl").records()
               if r.get("status") == "failed" and r["key"] not in {x["key"] for x in records}]
     agg = aggregate(records)
@@ -315,6 +379,7 @@ def write_report(out_dir: Path) -> Path:
         md += table(f"Success of the final checkpoint on {n_fresh} fresh episodes (%)", "success_fresh", 100, 1,
                     "Episodes with seeds no periodic evaluation, demo or held-out episode used. Top-k picks the best "
                     "checkpoints on the episodes it reports, so it is optimistic; this number is not.")
+    md += _estimators_table(records, tasks, methods, label, preset)
     md += table("Success at the last periodic evaluation (%)", "success_final", 100, 1)
     md += table("Action Total Variation of executed actions (↓)", "atv", 1, 4,
                 "ATV of the final checkpoint's evaluation episodes (paper eq. for ATV).")

@@ -27,6 +27,7 @@ from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
+from .seeds import fresh_offset
 from .resume import (
     earlier_segments,
     find_resume_point,
@@ -121,9 +122,12 @@ def train_command(spec: RunSpec) -> list[str]:
         f"--save_freq={p.eval_every}",  # a checkpoint at every evaluation: an interrupted run resumes (resume.py)
         f"--log_freq={max(p.eval_every // 2, 1)}",
         "--wandb.enable=false",
-        # LeRobot's own periodic evaluation, in the plugin's env (same seeds at every evaluation of a run).
+        # LeRobot's own periodic evaluation, in the plugin's env (same seeds at every evaluation unless "fresh").
         *_env_args(spec, out / "eval_episodes.jsonl"),
         f"--env_eval_freq={p.eval_every}",
+        # "fresh": the env offsets LeRobot's reset seeds by this plus the evaluation episodes already recorded,
+        # so every evaluation (and every training seed) draws new placements, as DP3's runner does (seeds.py).
+        *([f"--env.fresh_reset_seeds={fresh_offset(p, spec.seed)}"] if p.periodic_eval == "fresh" else []),
         f"--eval.n_episodes={p.eval_episodes}",
         f"--eval.batch_size={p.eval_episodes}",
         *p.extra_train_args,
@@ -259,6 +263,7 @@ def run_one(spec: RunSpec) -> dict:
         "seed": spec.seed,
         "preset": p.name,
         "success_top_k": top_k_mean(successes, p.top_k),
+        "periodic_eval": p.periodic_eval,  # "fresh": success_top_k is the paper's estimator (DP3's runner)
         "success_final": successes[-1],
         "atv": curve[-1]["atv"],  # executed actions of the final evaluation
         "curve": curve,
