@@ -193,3 +193,33 @@ def test_a_fresh_evaluation_resets_other_placements_than_the_last_one(tmp_path):
     assert not np.allclose(first[0], first[1])
     seeds = [json.loads(x)["seed"] for x in (tmp_path / "fresh.jsonl").read_text().splitlines()]
     assert sorted(seeds) == [1_000_000, 1_000_001, 1_000_002, 1_000_003]  # recorded: the seeds that placed them
+
+
+def test_a_tiny_grid_evaluates_fresh_placements_and_its_final_checkpoint_is_rescored(tmp_path):
+    """A real run (reach, 4 steps, an evaluation of 2 episodes every 2 steps) with --periodic-eval fresh: LeRobot's
+    two periodic evaluations reset other placements; then `lerobot-focal-bench rescore` scores its final checkpoint
+    on 3 blocks of 2 fresh episodes and the report shows the numbers (committed grids keep no checkpoints)."""
+    from lerobot_focal.benchmarks.cli import main as bench
+
+    out, work = tmp_path / "out", tmp_path / "work"
+    tiny = ["--preset", "cpu", "--steps", "4", "--eval-every", "2", "--eval-episodes", "2", "--demos", "2",
+            "--heldout-demos", "1", "--episode-length", "100", "--batch-size", "8", "--tasks", "reach", "--seeds",
+            "0", "--methods", "focal", "--periodic-eval", "fresh", "--out", str(out), "--work", str(work)]
+    assert bench(["grid", *tiny]) == 0
+    (record,) = ResultsFile(out / "results.jsonl").records()
+    assert record["status"] == "ok" and record["periodic_eval"] == "fresh"
+    run_dir = Path(record["run_dir"])
+    seeds = [json.loads(x)["seed"] for x in (run_dir / "eval_episodes.jsonl").read_text().splitlines()]
+    seeds = [s for s in seeds if s is not None]
+    assert sorted(seeds) == [1_000_000, 1_000_001, 1_000_002, 1_000_003]  # evaluation 2 did not replay evaluation 1
+
+    assert bench(["rescore", "--out", str(out), "--work", str(work), "--blocks", "3"]) == 0
+    entry = json.loads((out / "rescore.json").read_text())["reach|focal|0"]
+    assert entry["episodes"] == 6 and len(entry["blocks"]) == 3 and entry["first_seed"] == 400_000
+    episodes = [json.loads(x) for x in (run_dir / "rescore_episodes.jsonl").read_text().splitlines()]
+    assert sorted(e["seed"] for e in episodes if e["seed"] is not None) == list(range(400_000, 400_006))
+    assert entry["mean"] == pytest.approx(np.mean([e["success"] for e in episodes if e["seed"] is not None]))
+    summary = json.loads((out / "summary.json").read_text())["methods"]["focal"]["reach"]
+    assert summary["top5_paper_mean"] == pytest.approx(record["success_top_k"])  # fresh: the grid's own top-5
+    assert summary["rescore_mean"] == pytest.approx(entry["mean"])
+    assert "## Three estimators" in (out / "report.md").read_text()
