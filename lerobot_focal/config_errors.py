@@ -1,0 +1,95 @@
+"""One error type for every config the plugin registers, so a bad command-line value reaches the user.
+
+draccus, LeRobot's command-line parser, replaces a ValueError or TypeError raised while it builds a config
+with "Couldn't instantiate class X using the given arguments" and two tracebacks: a `lerobot-train`,
+`lerobot-eval` or `lerobot-record` user never learns what was wrong. A draccus `DecodingError` with an empty
+key path is printed verbatim instead (`error: ...`, exit status 1), as LeRobot prints its own parsing errors.
+`ConfigError` is such an error, and `@reports_config_errors` turns the ValueError/TypeError a config's
+`__post_init__` raises (its own checks, or those of a helper it calls) into one, so each config keeps plain
+Python checks and every message still names the config it came from.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Iterable
+from typing import TypeVar
+
+from draccus.utils import DecodingError
+
+T = TypeVar("T", bound=type)
+
+
+class ConfigError(DecodingError):
+    """A config value that cannot work; the message names the field, the valid values and the fix.
+
+    Deliberately not a ValueError: see the module docstring.
+    """
+
+    def __init__(self, message: str):
+        super().__init__((), message)
+
+
+def reports_config_errors(label: str) -> Callable[[T], T]:
+    """Class decorator: ValueError/TypeError from ``__post_init__`` become a `ConfigError` prefixed by `label`.
+
+    `label` is what the user typed to choose the config (e.g. ``"--env.type=focal_metaworld"``), so the message
+    says which of the several configs of one command line is wrong.
+    """
+
+    def decorate(cls: T) -> T:
+        post_init = cls.__dict__.get("__post_init__")
+        if post_init is None:
+            raise TypeError(f"{cls.__name__} defines no __post_init__ to wrap")
+
+        @functools.wraps(post_init)
+        def checked_post_init(self, *args, **kwargs):
+            try:
+                post_init(self, *args, **kwargs)
+            except ConfigError as e:
+                if str(e).startswith(label):
+                    raise
+                raise ConfigError(f"{label}: {e}") from e
+            except (ValueError, TypeError) as e:
+                raise ConfigError(f"{label}: {e}") from e
+
+        cls.__post_init__ = checked_post_init
+        return cls
+
+    return decorate
+
+
+# --- range checks shared by the configs: each raises a ValueError naming the field and the valid range -----
+
+
+def require_positive(**values: float | int | None) -> None:
+    """Each given value (None: not set, skipped) must be a finite number > 0."""
+    for name, value in values.items():
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {value}.")
+
+
+def require_non_negative(**values: float | int | None) -> None:
+    """Each given value (None: not set, skipped) must be a finite number ≥ 0."""
+    for name, value in values.items():
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite number ≥ 0, got {value}.")
+
+
+def require_in_range(name: str, value: float | None, low: float, high: float, *, low_open: bool = False,
+                     high_open: bool = False, why: str = "") -> None:
+    """`value` within [low, high] (a side excluded where open); None is not set and skipped."""
+    if value is None:
+        return
+    above = value > low if low_open else value >= low
+    below = value < high if high_open else value <= high
+    if not (math.isfinite(value) and above and below):
+        interval = f"{'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}"
+        raise ValueError(f"{name} must be in {interval}, got {value}.{' ' + why if why else ''}")
+
+
+def require_choice(name: str, value: object, choices: Iterable[object]) -> None:
+    choices = list(choices)
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}.")
