@@ -12,7 +12,6 @@ The EMA copy is a frozen submodule, so LeRobot's own `save_pretrained` / `from_p
 step) advances it.
 """
 
-import copy
 from collections import deque
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from lerobot.utils.constants import ACTION
 from torch import Tensor, nn
 
 from lerobot_focal.policy.configuration_focal import FocalConfig
+from lerobot_focal.policy.ema import ema_decay, ema_update_, frozen_copy  # noqa: F401  (ema_decay: re-exported)
 from lerobot_focal.policy.encoders import ObservationEncoder
 from lerobot_focal.policy.input_checks import check_dataset_stats
 from lerobot_focal.policy.network import VelocityUnet
@@ -68,14 +68,6 @@ MODEL_CARD_INTRO = (
 )
 
 
-def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, update_after_step: int = 0) -> float:
-    """DP3's EMA warm-up: 0 for the first updates, then 1 − (1 + s)^−power clipped to [min, max]."""
-    s = max(0, step - update_after_step - 1)
-    if s <= 0:
-        return 0.0
-    return max(min_decay, min(1.0 - (1.0 + s) ** -power, max_decay))
-
-
 class FocalPolicy(PreTrainedPolicy):
     config_class = FocalConfig
     name = "focal"
@@ -101,7 +93,7 @@ class FocalPolicy(PreTrainedPolicy):
         self.model = FocalModel(config)
         self.ema_model: FocalModel | None = None
         if config.use_ema:
-            self.ema_model = copy.deepcopy(self.model).requires_grad_(False).eval()
+            self.ema_model = frozen_copy(self.model)
         # Number of EMA updates so far; a buffer so checkpoints and --resume keep the EMA schedule.
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
         self._objective = config.objective_spec()
@@ -180,14 +172,7 @@ class FocalPolicy(PreTrainedPolicy):
             max_decay=cfg.ema_max_decay,
             update_after_step=cfg.ema_update_after_step,
         )
-        ema_params = list(self.ema_model.parameters())
-        online_params = list(self.model.parameters())
-        if decay == 0.0:
-            torch._foreach_copy_(ema_params, online_params)
-        else:
-            torch._foreach_lerp_(ema_params, online_params, 1.0 - decay)
-        for ema_buf, buf in zip(self.ema_model.buffers(), self.model.buffers(), strict=True):
-            ema_buf.copy_(buf)  # e.g. BatchNorm statistics are copied, not averaged
+        ema_update_(self.ema_model, self.model, decay)
         self.ema_step += 1
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
