@@ -4,5 +4,6 @@ from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig, Foc
 from lerobot_focal.policy.modeling_focal import FocalPolicy
 from lerobot_focal.policy.processor_focal import make_focal_pre_post_processors
 from lerobot_focal.policy import diffusion_fco  # noqa: E402,F401  (registers --policy.type=diffusion_fco)
+from lerobot_focal.policy import diffusion_ema  # noqa: E402,F401  (registers --policy.type=diffusion_ema)
 
 __all__ = ["ABLATIONS", "FocalConfig", "FocalConfigError", "FocalPolicy", "make_focal_pre_post_processors"]
