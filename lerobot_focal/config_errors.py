@@ -31,11 +31,12 @@ class ConfigError(DecodingError):
         super().__init__((), message)
 
 
-def reports_config_errors(label: str) -> Callable[[T], T]:
-    """Class decorator: ValueError/TypeError from ``__post_init__`` become a `ConfigError` prefixed by `label`.
+def reports_config_errors(label: str, error: type[ConfigError] = ConfigError) -> Callable[[T], T]:
+    """Class decorator: ValueError/TypeError from ``__post_init__`` become `error` prefixed by `label`.
 
     `label` is what the user typed to choose the config (e.g. ``"--env.type=focal_metaworld"``), so the message
-    says which of the several configs of one command line is wrong.
+    says which of the several configs of one command line is wrong. A `ConfigError` raised directly gets the
+    prefix too.
     """
 
     def decorate(cls: T) -> T:
@@ -48,11 +49,11 @@ def reports_config_errors(label: str) -> Callable[[T], T]:
             try:
                 post_init(self, *args, **kwargs)
             except ConfigError as e:
-                if str(e).startswith(label):
+                if isinstance(e, error) and str(e).startswith(label):  # already said by a nested call
                     raise
-                raise ConfigError(f"{label}: {e}") from e
+                raise error(f"{label}: {e}") from e
             except (ValueError, TypeError) as e:
-                raise ConfigError(f"{label}: {e}") from e
+                raise error(f"{label}: {e}") from e
 
         cls.__post_init__ = checked_post_init
         return cls
@@ -64,17 +65,17 @@ def reports_config_errors(label: str) -> Callable[[T], T]:
 
 
 def require_positive(**values: float | int | None) -> None:
-    """Each given value (None: not set, skipped) must be a finite number > 0."""
+    """Each given value (None: not set, skipped) must be a finite number > 0 (NaN and inf are refused)."""
     for name, value in values.items():
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a finite number > 0, got {value}.")
+            raise ValueError(f"{name} must be a number > 0, got {value}.")
 
 
 def require_non_negative(**values: float | int | None) -> None:
     """Each given value (None: not set, skipped) must be a finite number ≥ 0."""
     for name, value in values.items():
         if value is not None and not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a finite number ≥ 0, got {value}.")
+            raise ValueError(f"{name} must be a number ≥ 0, got {value}.")
 
 
 def require_in_range(name: str, value: float | None, low: float, high: float, *, low_open: bool = False,
@@ -93,3 +94,14 @@ def require_choice(name: str, value: object, choices: Iterable[object]) -> None:
     choices = list(choices)
     if value not in choices:
         raise ValueError(f"{name} must be one of {choices}, got {value!r}.")
+
+
+def check_adamw(*, lr: float, betas: tuple[float, ...], eps: float, weight_decay: float, grad_clip_norm: float,
+                prefix: str = "") -> None:
+    """AdamW's settings, named as the config that holds them spells them (`prefix` + lr, betas, ...)."""
+    require_positive(**{f"{prefix}lr": lr, f"{prefix}eps": eps, f"{prefix}grad_clip_norm": grad_clip_norm})
+    require_non_negative(**{f"{prefix}weight_decay": weight_decay})
+    if len(betas) != 2:
+        raise ValueError(f"{prefix}betas must be two numbers (β1, β2), got {tuple(betas)}.")
+    for i, beta in enumerate(betas):
+        require_in_range(f"{prefix}betas[{i}]", beta, 0.0, 1.0, high_open=True)

@@ -17,6 +17,8 @@ from lerobot.configs import PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.processor import PolicyProcessorPipeline
 
+from lerobot_focal.config_errors import require_non_negative, require_positive
+
 from .features import env_features_map, uses_pointcloud
 from .processor import PointCloudObservationStep
 from .vector import make_vector_env
@@ -70,6 +72,21 @@ class FocalSimEnvConfig(EnvConfig):
         return task
 
     # --- shared ----------------------------------------------------------------------------------------
+    def check_fields(self) -> None:
+        """The fields every suite shares; each suite's `__post_init__` calls this first."""
+        require_positive(
+            episode_length=self.episode_length, fps=self.fps, observation_width=self.observation_width,
+            observation_height=self.observation_height, num_points=self.num_points, depth_width=self.depth_width,
+            depth_height=self.depth_height, raycast_threads=self.raycast_threads,
+        )
+        require_non_negative(voxel_size=self.voxel_size)
+        lo, hi = tuple(self.workspace_low), tuple(self.workspace_high)
+        if len(lo) != 3 or len(hi) != 3 or any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(
+                f"workspace_low {lo} must be below workspace_high {hi} on x, y and z (the world-frame box the point "
+                "cloud is cropped to, metres)."
+            )
+
     @property
     def gym_kwargs(self) -> dict[str, Any]:
         kwargs = {name: getattr(self, name) for name in (*self.GYM_FIELDS, *self.EXTRA_GYM_FIELDS)}

@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING, ClassVar
 
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_focal.config_errors import reports_config_errors
+
 from .base import FocalSimEnvConfig
 from .features import check_obs_type, env_features, resolve_names
 
@@ -48,6 +50,7 @@ def _canonical_task(name: str) -> str:
 
 
 @EnvConfig.register_subclass("focal_adroit")
+@reports_config_errors("--env.type=focal_adroit")
 @dataclass
 class FocalAdroitEnvConfig(FocalSimEnvConfig):
     """``task``: hammer, door, pen, 'all', or a comma-separated list. One task per config for training."""
@@ -72,6 +75,7 @@ class FocalAdroitEnvConfig(FocalSimEnvConfig):
     EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("terminate_on_success",)
 
     def __post_init__(self) -> None:
+        self.check_fields()
         check_obs_type(self.obs_type)
         requested = ",".join(_canonical_task(t) for t in self.task.split(",") if t.strip())
         self.tasks = resolve_names(requested, ADROIT_TASKS, ADROIT_GROUPS, "Adroit task")

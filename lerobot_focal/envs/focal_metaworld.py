@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_focal.config_errors import reports_config_errors, require_non_negative
+
 from .base import FocalSimEnvConfig
 from .features import DEFAULT_VOXEL_SIZE, check_obs_type, env_features, resolve_names, uses_pixels
 
@@ -81,6 +83,7 @@ def recorded_seeded_episodes(path: str | Path) -> int:
 
 
 @EnvConfig.register_subclass("focal_metaworld")
+@reports_config_errors("--env.type=focal_metaworld")
 @dataclass
 class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     """``task``: a v3 task, a difficulty group (easy, medium, hard, very_hard) or a comma-separated mix."""
@@ -116,7 +119,16 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("env_state", "camera_pos", "render_videos", "table_clearance")
 
     def __post_init__(self) -> None:
+        self.check_fields()
         check_obs_type(self.obs_type)
+        require_non_negative(table_clearance=self.table_clearance, fresh_reset_seeds=self.fresh_reset_seeds)
+        if self.fresh_reset_seeds is not None and not self.metrics_path:
+            raise ValueError(
+                "fresh_reset_seeds counts the evaluation episodes recorded in metrics_path: set --env.metrics_path "
+                "too (or leave fresh_reset_seeds unset)."
+            )
+        if self.render_mode != "rgb_array":
+            raise ValueError(f"render_mode must be 'rgb_array' (frames for videos), got {self.render_mode!r}.")
         if not self.render_videos and uses_pixels(self.obs_type):
             raise ValueError(
                 f"render_videos=false blanks rendered frames, but obs_type={self.obs_type!r} observes pixels: "
@@ -138,8 +150,6 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     def _env_factory(self, task: str):
         if self.fresh_reset_seeds is None:
             return super()._env_factory(task)
-        if not self.metrics_path:
-            raise ValueError("fresh_reset_seeds counts the evaluation episodes recorded in metrics_path: set both")
         offset = self.fresh_reset_seeds + recorded_seeded_episodes(self.metrics_path)
         cls, kwargs = self.env_class(), {**self.gym_kwargs, "reset_seed_offset": offset}
         return lambda: cls(task=task, **kwargs)

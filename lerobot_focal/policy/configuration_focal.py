@@ -16,12 +16,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from draccus.utils import DecodingError
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_focal.config_errors import (
+    ConfigError,
+    check_adamw,
+    reports_config_errors,
+    require_choice,
+    require_non_negative,
+    require_positive,
+)
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
@@ -66,23 +73,18 @@ ABLATIONS: dict[str, dict[str, object]] = {
 }
 
 
-class FocalConfigError(DecodingError):
+class FocalConfigError(ConfigError):
     """A `FocalConfig` setting that cannot work; the message names it and the fix.
 
-    Deliberately not a ValueError: draccus, LeRobot's command-line parser, replaces a ValueError or TypeError
-    raised while it builds a config with "Couldn't instantiate class FocalConfig using the given arguments",
-    so a `lerobot-train` user would never learn what was wrong. A draccus DecodingError with an empty key
-    path is printed verbatim, as LeRobot prints its own parsing errors (`error: ...`, exit status 1).
+    A `ConfigError`, not a ValueError, so that it reaches the `lerobot-train` user (see `config_errors`).
     """
-
-    def __init__(self, message: str):
-        super().__init__((), message)
 
 
 assert set(PAPER_METHOD) >= {k for fields in ABLATIONS.values() for k in fields}
 
 
 @PreTrainedConfig.register_subclass("focal")
+@reports_config_errors("--policy.type=focal", FocalConfigError)
 @dataclass
 class FocalConfig(PreTrainedConfig):
     """Configuration of FocalPolicy: windows, observations, network, method switches, EMA and optimiser.
@@ -312,14 +314,10 @@ class FocalConfig(PreTrainedConfig):
     scheduler_warmup_steps: int = 500
 
     def __post_init__(self) -> None:
+        # A ValueError from here (the specs' own checks included) reaches the CLI user as a FocalConfigError.
         super().__post_init__()
-        try:
-            self._resolve_method_switches()
-            self._validate()
-        except FocalConfigError:
-            raise
-        except ValueError as e:  # from the specs' own checks: same reason to reach the CLI user
-            raise FocalConfigError(str(e)) from e
+        self._resolve_method_switches()
+        self._validate()
 
     def _validate(self) -> None:
         if self.drop_n_last_frames is None:
@@ -357,13 +355,76 @@ class FocalConfig(PreTrainedConfig):
                 f"inference_noise_scale must be a finite number ≥ 0, got {self.inference_noise_scale} (1 samples the "
                 "flow's own prior; 0 starts every chunk from M_0 = 0, one deterministic trajectory per observation)."
             )
-        if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0:
-            raise FocalConfigError("EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1.")
+        if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0 or self.ema_max_decay == 0.0:
+            raise FocalConfigError(
+                f"EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1 with ema_max_decay > 0 (got "
+                f"{self.ema_min_decay}, {self.ema_max_decay}; DP3's are 0 and 0.9999)."
+            )
+        self._validate_network_and_inputs()
         if self.pointcloud_from_depth is not None:
             self._validate_pointcloud_from_depth()
-        # Building the specs validates every method switch with a message naming the allowed values.
+        # Building the specs validates every method switch and loss weight, with a message naming the range.
         self.objective_spec()
         self.time_sampler_spec()
+        self._validate_freq_cutoff()
+        check_adamw(lr=self.optimizer_lr, betas=self.optimizer_betas, eps=self.optimizer_eps,
+                    weight_decay=self.optimizer_weight_decay, grad_clip_norm=self.optimizer_grad_clip_norm,
+                    prefix="optimizer_")
+        require_non_negative(scheduler_warmup_steps=self.scheduler_warmup_steps)
+        from diffusers.optimization import SchedulerType  # already imported by lerobot.optim
+
+        require_choice("scheduler_name", self.scheduler_name, [t.value for t in SchedulerType])
+
+    def _validate_network_and_inputs(self) -> None:
+        require_non_negative(drop_n_last_frames=self.drop_n_last_frames, ema_update_after_step=self.ema_update_after_step)
+        require_positive(
+            pointcloud_feature_dim=self.pointcloud_feature_dim, state_feature_dim=self.state_feature_dim,
+            spatial_softmax_num_keypoints=self.spatial_softmax_num_keypoints, time_scale=self.time_scale,
+            pointcloud_num_points=self.pointcloud_num_points, ema_power=self.ema_power,
+        )
+        require_non_negative(pointcloud_voxel_size=self.pointcloud_voxel_size,
+                             pointcloud_min_depth=self.pointcloud_min_depth)
+        if self.pointcloud_depth_unit not in ("mm", "m"):
+            raise ValueError(f"pointcloud_depth_unit must be 'mm' or 'm', got {self.pointcloud_depth_unit!r}.")
+        for name in ("resize_shape", "crop_shape"):
+            shape = getattr(self, name)
+            if shape is not None and (len(shape) != 2 or min(shape) < 1):
+                raise ValueError(f"{name} must be (height, width) with both ≥ 1 pixel, or unset; got {shape}.")
+        dims = tuple(self.down_dims)
+        if not dims or min(dims) < 1:
+            raise ValueError(f"down_dims must list ≥ 1 positive channel width, got {dims}.")
+        if self.n_groups < 1 or any(d % self.n_groups for d in dims):
+            raise ValueError(
+                f"n_groups={self.n_groups} must be ≥ 1 and divide every U-Net width down_dims={dims} (GroupNorm "
+                "splits each block's channels into n_groups groups)."
+            )
+        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
+            raise ValueError(
+                f"kernel_size must be an odd number ≥ 1 (the U-Net pads kernel_size // 2 on each side to keep the "
+                f"horizon), got {self.kernel_size}."
+            )
+        if self.time_embed_dim < 4 or self.time_embed_dim % 2:
+            raise ValueError(
+                f"time_embed_dim must be an even number ≥ 4 (half sines, half cosines), got {self.time_embed_dim}."
+            )
+        if self.pretrained_backbone_weights is not None and self.use_group_norm:
+            raise ValueError(
+                f"pretrained_backbone_weights={self.pretrained_backbone_weights!r} holds BatchNorm statistics, which "
+                "use_group_norm=true would replace: set --policy.use_group_norm=false with pretrained weights."
+            )
+
+    def _validate_freq_cutoff(self) -> None:
+        """The "low"/"high" DCT bands split the L_freq window's coefficients at freq_cutoff: both must be non-empty."""
+        if self.regularizer != "freq" or self.freq_band == "all":
+            return
+        n = self.horizon if self.freq_loss_window == "macro" else self.chunk_size
+        cutoff = self.freq_cutoff if self.freq_cutoff is not None else max(1, n // 2)
+        if not 0 < cutoff < n:
+            raise ValueError(
+                f"freq_cutoff must be in (0, {n}) for freq_band={self.freq_band!r}: the L_freq window "
+                f"({self.freq_loss_window}, {n} steps) has DCT coefficients 0…{n - 1} and the cutoff is the first "
+                f"'high' one; got {cutoff}{' (the default, L/2)' if self.freq_cutoff is None else ''}."
+            )
 
     def _validate_pointcloud_from_depth(self) -> None:
         if self.pointcloud_crop_min is None or self.pointcloud_crop_max is None:
@@ -376,10 +437,6 @@ class FocalConfig(PreTrainedConfig):
         lo, hi = tuple(self.pointcloud_crop_min), tuple(self.pointcloud_crop_max)
         if len(lo) != 3 or len(hi) != 3 or any(a >= b for a, b in zip(lo, hi, strict=True)):
             raise ValueError(f"pointcloud_crop_min {lo} must be below pointcloud_crop_max {hi} on x, y and z.")
-        if self.pointcloud_num_points < 1:
-            raise ValueError(f"pointcloud_num_points must be ≥ 1, got {self.pointcloud_num_points}.")
-        if self.pointcloud_depth_unit not in ("mm", "m"):
-            raise ValueError(f"pointcloud_depth_unit must be 'mm' or 'm', got {self.pointcloud_depth_unit!r}.")
         if not self.use_pointcloud:
             raise ValueError("pointcloud_from_depth is set but use_pointcloud=false: drop one of the two.")
         if self.use_pointcloud_color:

@@ -31,6 +31,8 @@ from functools import lru_cache
 import torch
 from torch import Tensor
 
+from lerobot_focal.config_errors import require_in_range, require_non_negative
+
 OBJECTIVES = ("fco", "flowpolicy")
 WINDOWS = ("proximal", "macro")
 REGULARIZERS = ("freq", "time_mse", "none")
@@ -70,7 +72,20 @@ class ObjectiveSpec:
         if self.chunk_size < 1:
             raise ValueError(f"chunk_size must be ≥ 1, got {self.chunk_size}.")
         if self.cfm_num_segments < 1:
-            raise ValueError("cfm_num_segments must be ≥ 1.")
+            raise ValueError(f"cfm_num_segments must be ≥ 1, got {self.cfm_num_segments}.")
+        # A negative weight makes the optimiser maximise that error; the total loss goes negative and keeps falling.
+        require_non_negative(time_weight=self.time_weight, freq_weight=self.freq_weight,
+                             macro_mse_weight=self.macro_mse_weight, cfm_alpha=self.cfm_alpha)
+        require_in_range("adjacent_delta", self.cfm_delta, 0.0, 1.0, low_open=True)
+        require_in_range("cfm_boundary", self.cfm_boundary, 0.0, 1.0, low_open=True)
+        if self.kind == "fco" and self.time_weight == 0 and self._regularizer_weight() == 0:
+            raise ValueError(
+                "every term of the FCO loss has weight 0 (time_weight, and the regularizer's weight), so nothing "
+                "would train: give L_time or the regularizer a weight > 0."
+            )
+
+    def _regularizer_weight(self) -> float:
+        return {"freq": self.freq_weight, "time_mse": self.macro_mse_weight}.get(self.regularizer, 0.0)
 
 
 @lru_cache(maxsize=32)

@@ -15,6 +15,8 @@ import torch
 from lerobot.optim import AdamWConfig
 from lerobot.optim.optimizers import OptimizerConfig
 
+from lerobot_focal.config_errors import check_adamw, reports_config_errors
+
 
 def fused_supported(params: list) -> bool:
     """Fused AdamW needs floating-point parameters on one device type that has the kernel (CPU, CUDA, MPS)."""
@@ -26,10 +28,15 @@ def fused_supported(params: list) -> bool:
 
 
 @OptimizerConfig.register_subclass("focal_adamw")
+@reports_config_errors("--optimizer.type=focal_adamw")
 @dataclass
 class FusedAdamWConfig(AdamWConfig):
     # None: fused when the parameters allow it (see `fused_supported`), else LeRobot's default AdamW.
     fused: bool | None = None
+
+    def __post_init__(self) -> None:
+        check_adamw(lr=self.lr, betas=self.betas, eps=self.eps, weight_decay=self.weight_decay,
+                    grad_clip_norm=self.grad_clip_norm)
 
     def build(self, params) -> torch.optim.Optimizer:
         params = list(params)

@@ -9,10 +9,13 @@ f_θ⁻(M_r, r) ≈ M_1 is nearly the expert trajectory itself and carries a str
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from lerobot_focal.config_errors import require_in_range, require_positive
 
 ANCHOR_SAMPLERS = ("logit_normal", "adjacent", "fixed", "mixture")
 
@@ -43,12 +46,15 @@ class TimeSamplerSpec:
                 "(logit_normal = LAS, adjacent = FlowPolicy / 'w/o LAS', fixed = 'fixed r', "
                 "mixture = the authors' public code)."
             )
-        if not 0.0 <= self.eps < 1.0:
-            raise ValueError(f"time eps must be in [0, 1), got {self.eps}.")
-        if self.anchor_sigma <= 0 or self.mixture_sigma_a <= 0:
-            raise ValueError("anchor sigmas must be positive.")
-        if not 0.0 <= self.fixed_r <= 1.0:
-            raise ValueError(f"fixed_r must be in [0, 1], got {self.fixed_r}.")
+        require_in_range("time_eps", self.eps, 0.0, 1.0, high_open=True)
+        require_positive(anchor_sigma=self.anchor_sigma, mixture_sigma_a=self.mixture_sigma_a)
+        for name, mu in (("anchor_mu", self.anchor_mu), ("mixture_mu_a", self.mixture_mu_a)):
+            if not math.isfinite(mu):
+                raise ValueError(f"{name} must be a finite number, got {mu}.")
+        require_in_range("fixed_r", self.fixed_r, 0.0, 1.0)
+        require_in_range("adjacent_delta", self.adjacent_delta, 0.0, 1.0, low_open=True,
+                         why="r = min(τ + Δ, 1) must lie past τ.")
+        require_in_range("mixture_ratio", self.mixture_ratio, 0.0, 1.0, why="It is a probability.")
 
 
 def sample_flow_time(batch_size: int, eps: float, *, device=None, generator=None) -> Tensor:

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.envs.episode_metrics import action_total_variation
 from lerobot_focal.envs.features import OBS_TYPES
 
@@ -81,7 +82,7 @@ def test_metaworld_env_state_is_metaworlds_own_observation():
         assert frame.shape == (16, 16, 3) and not frame.any()  # render_videos=false: blank video frames
     finally:
         env.close()
-    with pytest.raises(ValueError, match="render_videos"):
+    with pytest.raises(ConfigError, match="render_videos"):
         FocalMetaworldEnvConfig(task="reach", obs_type="pixels", render_videos=False)
 
 

@@ -6,6 +6,8 @@ import sys
 import numpy as np
 import pytest
 
+from lerobot_focal.config_errors import ConfigError
+
 
 def test_import_registers_configs_without_simulators():
     code = (
@@ -31,9 +33,9 @@ def test_metaworld_config_resolves_groups_and_names():
     assert cfg.features["agent_pos"].shape == (9,)
     assert cfg.features["action"].shape == (4,)
     assert "pixels" not in cfg.features
-    with pytest.raises(ValueError, match="valid MetaWorld tasks"):
+    with pytest.raises(ConfigError, match="valid MetaWorld tasks"):
         FocalMetaworldEnvConfig(task="no-such-task")
-    with pytest.raises(ValueError, match="valid obs types"):
+    with pytest.raises(ConfigError, match="valid obs types"):
         FocalMetaworldEnvConfig(obs_type="depth")
 
 
@@ -42,7 +44,7 @@ def test_adroit_config_action_dims():
 
     assert FocalAdroitEnvConfig(task="door").features["action"].shape == (28,)
     assert FocalAdroitEnvConfig(task="AdroitHandPen-v1", obs_type="state").features["action"].shape == (24,)
-    with pytest.raises(ValueError, match="different action sizes"):
+    with pytest.raises(ConfigError, match="different action sizes"):
         FocalAdroitEnvConfig(task="all")
 
 

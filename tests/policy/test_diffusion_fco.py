@@ -28,6 +28,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.diffusion import DiffusionConfig, DiffusionPolicy
 from lerobot.policies.factory import get_policy_class, make_policy, make_pre_post_processors
 
+from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.policy.diffusion_fco import DiffusionFcoConfig, DiffusionFcoPolicy
 
 BIN = Path(sys.executable).parent
@@ -189,14 +190,14 @@ def test_gradient_of_fco_reaches_the_network():
 
 
 def test_config_validation_and_factory_resolution():
-    with pytest.raises(ValueError, match="fco_time_window"):
+    with pytest.raises(ConfigError, match="fco_time_window"):
         _config(fco_time_window="proximal")
-    with pytest.raises(ValueError, match="executed window"):
+    with pytest.raises(ConfigError, match="executed window"):
         _config(n_action_steps=16)
-    with pytest.raises(ValueError, match="fco_weighting"):
+    with pytest.raises(ConfigError, match="fco_weighting"):
         _config(fco_weighting="snr")
     for gamma in (0.0, float("nan")):
-        with pytest.raises(ValueError, match="fco_min_snr_gamma"):
+        with pytest.raises(ConfigError, match="fco_min_snr_gamma"):
             _config(fco_min_snr_gamma=gamma)
     assert "diffusion_fco" in PreTrainedConfig.get_known_choices()
     assert get_policy_class("diffusion_fco") is DiffusionFcoPolicy

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.robots.ur10e import UR10e, UR10eConfig
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
 
@@ -27,7 +28,7 @@ def test_real_cameras_need_a_hand_eye_pose():
     from lerobot.cameras.realsense import RealSenseCameraConfig
 
     cam = RealSenseCameraConfig(serial_number_or_name="123", fps=30, width=640, height=480, use_depth=True)
-    with pytest.raises(ValueError, match="camera_poses"):
+    with pytest.raises(ConfigError, match="camera_poses"):
         UR10eConfig(backend="rtde", cameras={"front": cam})
     cfg = UR10eConfig(backend="rtde", cameras={"front": cam}, camera_poses={"front": [0, 0, 1, 0, 0, 0]})
     feats = UR10e(cfg).observation_features

@@ -12,6 +12,7 @@ pytest.importorskip("mujoco")
 
 from lerobot.robots.utils import make_robot_from_config  # noqa: E402
 
+from lerobot_focal.config_errors import ConfigError  # noqa: E402
 from lerobot_focal.robots.ur10e import UR10e, UR10eConfig, UnsafeActionError  # noqa: E402
 from lerobot_focal.robots.ur10e.kinematics import HOME_Q, dh_forward  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError, SafetyConfig  # noqa: E402
@@ -59,9 +60,9 @@ def test_make_robot_from_config_returns_ur10e(tmp_path):
 
 
 def test_bad_config_is_rejected():
-    with pytest.raises(ValueError, match="backend"):
+    with pytest.raises(ConfigError, match="backend"):
         UR10eConfig(backend="ros")
-    with pytest.raises(ValueError, match="action_mode"):
+    with pytest.raises(ConfigError, match="action_mode"):
         UR10eConfig(action_mode="joint")
 
 
@@ -244,5 +245,5 @@ def test_threaded_camera_serves_its_latest_frame_at_its_own_rate(tmp_path):
         r.disconnect()
     assert not backend.is_connected and backend._camera_thread is None
     for bad in (-1, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="sim_camera_fps"):
+        with pytest.raises(ConfigError, match="sim_camera_fps"):
             UR10eConfig(backend="sim", sim_camera_fps=bad)

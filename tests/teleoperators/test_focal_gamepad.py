@@ -19,6 +19,7 @@ from virtual_joystick import F710, F710Button, VirtualJoystick  # noqa: E402
 from lerobot.teleoperators.config import TeleoperatorConfig  # noqa: E402
 from lerobot.teleoperators.utils import TeleopEvents, make_teleoperator_from_config  # noqa: E402
 from lerobot.utils.errors import DeviceNotConnectedError  # noqa: E402
+from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.teleoperators import FocalGamepad, FocalGamepadConfig  # noqa: E402
 from lerobot_focal.teleoperators.focal_gamepad import (  # noqa: E402
     VELOCITY_NAMES,
@@ -220,7 +221,7 @@ def test_custom_mapping_and_signs(pad, tmp_path):
 
 
 def test_bad_config_is_refused():
-    with pytest.raises(ValueError, match="initial_speed_level"):
+    with pytest.raises(ConfigError, match="initial_speed_level"):
         FocalGamepadConfig(speed_levels=[0.5], initial_speed_level=2)
-    with pytest.raises(ValueError, match="on_disconnect"):
+    with pytest.raises(ConfigError, match="on_disconnect"):
         FocalGamepadConfig(on_disconnect="ignore")

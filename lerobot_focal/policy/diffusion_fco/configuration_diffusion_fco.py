@@ -12,11 +12,14 @@ from dataclasses import dataclass
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
+from lerobot_focal.config_errors import reports_config_errors, require_non_negative, require_positive
+
 FCO_WINDOWS = ("executed", "horizon")
 FCO_WEIGHTINGS = ("min_snr", "none")
 
 
 @PreTrainedConfig.register_subclass("diffusion_fco")
+@reports_config_errors("--policy.type=diffusion_fco")
 @dataclass
 class DiffusionFcoConfig(DiffusionConfig):
     """``DiffusionConfig`` plus the Foresight Composite Objective (paper §4.1, Table 2 "w. FCO").
@@ -63,10 +66,14 @@ class DiffusionFcoConfig(DiffusionConfig):
                 raise ValueError(f"`{name}` must be one of {list(FCO_WINDOWS)}. Got {value!r}.")
         if self.fco_weighting not in FCO_WEIGHTINGS:
             raise ValueError(f"`fco_weighting` must be one of {list(FCO_WEIGHTINGS)}. Got {self.fco_weighting!r}.")
-        if self.fco_lambda < 0 or self.fco_time_weight < 0:
-            raise ValueError("`fco_lambda` and `fco_time_weight` must be ≥ 0.")
-        if not self.fco_min_snr_gamma > 0:  # also catches NaN
-            raise ValueError(f"`fco_min_snr_gamma` must be > 0. Got {self.fco_min_snr_gamma}.")
+        # A negative weight makes the optimiser maximise that error.
+        require_non_negative(fco_lambda=self.fco_lambda, fco_time_weight=self.fco_time_weight)
+        require_positive(fco_min_snr_gamma=self.fco_min_snr_gamma)
+        if self.use_fco and not self.fco_keep_diffusion_loss and self.fco_lambda == 0 and self.fco_time_weight == 0:
+            raise ValueError(
+                "fco_keep_diffusion_loss=false trains on FCO alone, and both of its weights (fco_lambda, "
+                "fco_time_weight) are 0: nothing would train. Give one a weight > 0 or keep the diffusion loss."
+            )
         if self.n_action_steps < 1 or self.n_obs_steps - 1 + self.n_action_steps > self.horizon:
             raise ValueError(
                 "The executed window [n_obs_steps-1, n_obs_steps-1+n_action_steps) must lie inside the horizon. "

@@ -2,19 +2,31 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from lerobot.cameras import CameraConfig
 from lerobot.robots.config import RobotConfig
 
+from lerobot_focal.config_errors import (
+    reports_config_errors,
+    require_choice,
+    require_in_range,
+    require_non_negative,
+    require_positive,
+)
+
 from .safety import SafetyConfig
 
 BACKENDS = ("sim", "rtde")
 ACTION_MODES = ("velocity", "absolute")
+GRIPPERS = ("ag95", "none")
+#: The ranges URScript's servoL accepts for lookahead_time (s) and gain.
+SERVO_LOOKAHEAD_RANGE_S = (0.03, 0.2)
+SERVO_GAIN_RANGE = (100.0, 2000.0)
 
 
 @RobotConfig.register_subclass("ur10e")
+@reports_config_errors("--robot.type=ur10e")
 @dataclass
 class UR10eConfig(RobotConfig):
     """UR-10e + parallel gripper + depth camera, on the real arm (`rtde`) or its MuJoCo twin (`sim`).
@@ -73,17 +85,37 @@ class UR10eConfig(RobotConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.backend not in BACKENDS:
-            raise ValueError(f"UR10eConfig.backend must be one of {BACKENDS}, got {self.backend!r}.")
-        if self.action_mode not in ACTION_MODES:
-            raise ValueError(f"UR10eConfig.action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}.")
-        if not (math.isfinite(self.sim_camera_fps) and self.sim_camera_fps >= 0):
-            raise ValueError(f"UR10eConfig.sim_camera_fps must be >= 0 (0 renders on each read), got {self.sim_camera_fps}.")
-        if self.control_hz <= 0:
-            raise ValueError(f"UR10eConfig.control_hz must be positive, got {self.control_hz}.")
-        lo, hi = self.safety.workspace_min, self.safety.workspace_max
-        if any(a >= b for a, b in zip(lo, hi, strict=True)):
-            raise ValueError(f"Safety workspace_min {lo} must be below workspace_max {hi} on every axis.")
+        require_choice("backend", self.backend, BACKENDS)
+        require_choice("action_mode", self.action_mode, ACTION_MODES)
+        require_choice("gripper", self.gripper, GRIPPERS)
+        require_positive(
+            control_hz=self.control_hz, rtde_frequency=self.rtde_frequency, rtde_timeout_s=self.rtde_timeout_s,
+            rtde_connect_timeout_s=self.rtde_connect_timeout_s, pointcloud_num_points=self.pointcloud_num_points,
+            sim_camera_width=self.sim_camera_width, sim_camera_height=self.sim_camera_height,
+            **{"safety.max_linear_speed": self.safety.max_linear_speed,
+               "safety.max_angular_speed": self.safety.max_angular_speed},
+        )
+        require_non_negative(tcp_offset=self.tcp_offset)
+        if self.sim_camera_fps != 0:
+            require_positive(sim_camera_fps=self.sim_camera_fps)  # 0 renders on each read
+        require_in_range("sim_camera_fovy_deg", self.sim_camera_fovy_deg, 0.0, 180.0, low_open=True, high_open=True)
+        require_in_range("sim_joint_speed_fraction", self.sim_joint_speed_fraction, 0.0, 1.0, low_open=True,
+                         why="It is a fraction of the UR10e's maximum joint speeds.")
+        require_in_range("servo_lookahead_s", self.servo_lookahead_s, *SERVO_LOOKAHEAD_RANGE_S,
+                         why="That is the range URScript's servoL accepts.")
+        require_in_range("servo_gain", self.servo_gain, *SERVO_GAIN_RANGE, why="That is the range URScript's servoL accepts.")
+        if tuple(self.sim_camera_pos) == tuple(self.sim_camera_lookat):
+            raise ValueError(f"sim_camera_pos and sim_camera_lookat are the same point {tuple(self.sim_camera_pos)}.")
+        for name, (lo, hi) in {"safety.workspace": (self.safety.workspace_min, self.safety.workspace_max),
+                               "pointcloud": (self.pointcloud_min, self.pointcloud_max)}.items():
+            if any(a >= b for a, b in zip(lo, hi, strict=True)):
+                raise ValueError(f"{name}_min {tuple(lo)} must be below {name}_max {tuple(hi)} on every axis.")
+        bad_poses = {name: pose for name, pose in self.camera_poses.items() if len(pose) != 6}
+        if bad_poses:
+            raise ValueError(
+                f"camera_poses {bad_poses} must each be 6 numbers: x, y, z (m), roll, pitch, yaw (rad) of the camera's "
+                "optical frame in the robot base frame."
+            )
         if self.backend == "rtde":
             missing = [name for name in self.cameras if name not in self.camera_poses]
             if missing:

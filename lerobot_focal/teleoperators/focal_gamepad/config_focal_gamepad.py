@@ -34,9 +34,12 @@ In DirectInput mode (switch at "D") the layout differs again; use XInput.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, fields
 
 from lerobot.teleoperators.config import TeleoperatorConfig
+
+from lerobot_focal.config_errors import reports_config_errors, require_in_range, require_non_negative, require_positive
 
 
 @dataclass
@@ -59,6 +62,7 @@ class GamepadMapping:
 
 
 @TeleoperatorConfig.register_subclass("focal_gamepad")
+@reports_config_errors("--teleop.type=focal_gamepad")
 @dataclass
 class FocalGamepadConfig(TeleoperatorConfig):
     # Which joystick: the first whose name contains `name_contains` (case-insensitive) if set, else this index.
@@ -87,18 +91,26 @@ class FocalGamepadConfig(TeleoperatorConfig):
     mapping: GamepadMapping = field(default_factory=GamepadMapping)
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.deadzone < 1.0:
-            raise ValueError(f"focal_gamepad deadzone must be in [0, 1), got {self.deadzone}")
-        if not self.speed_levels or any(s <= 0 for s in self.speed_levels):
-            raise ValueError(f"focal_gamepad speed_levels must be positive factors, got {self.speed_levels}")
+        require_in_range("deadzone", self.deadzone, 0.0, 1.0, high_open=True)
+        require_positive(max_linear_speed=self.max_linear_speed, max_angular_speed=self.max_angular_speed)
+        require_non_negative(joystick_index=self.joystick_index)
+        if not self.speed_levels or not all(math.isfinite(s) and s > 0 for s in self.speed_levels):
+            raise ValueError(f"speed_levels must be positive factors, got {self.speed_levels}")
         if not 0 <= self.initial_speed_level < len(self.speed_levels):
             raise ValueError(
-                f"focal_gamepad initial_speed_level {self.initial_speed_level} is not an index into "
-                f"speed_levels {self.speed_levels}"
+                f"initial_speed_level {self.initial_speed_level} is not an index into speed_levels {self.speed_levels}"
             )
-        if len(self.signs) != 6:
-            raise ValueError(f"focal_gamepad signs needs 6 entries (x y z roll pitch yaw), got {self.signs}")
-        if not 0.0 <= self.initial_gripper <= 1.0:
-            raise ValueError(f"focal_gamepad initial_gripper must be in [0, 1], got {self.initial_gripper}")
+        if len(self.signs) != 6 or not all(math.isfinite(s) and s != 0 for s in self.signs):
+            raise ValueError(
+                f"signs needs 6 finite non-zero factors (x y z roll pitch yaw; -1 flips one), got {self.signs}"
+            )
+        require_in_range("initial_gripper", self.initial_gripper, 0.0, 1.0)
+        require_in_range("gripper_step", self.gripper_step, 0.0, 1.0, low_open=True,
+                         why="It moves the opening fraction (0 closed, 1 open) per call while a trigger is held.")
+        require_in_range("trigger_threshold", self.trigger_threshold, 0.0, 1.0, low_open=True, high_open=True,
+                         why="Triggers read 0 at rest and 1 fully pressed.")
         if self.on_disconnect not in ("raise", "zero"):
-            raise ValueError(f"focal_gamepad on_disconnect must be 'raise' or 'zero', got {self.on_disconnect!r}")
+            raise ValueError(f"on_disconnect must be 'raise' or 'zero', got {self.on_disconnect!r}")
+        negative = {f.name: getattr(self.mapping, f.name) for f in fields(self.mapping) if getattr(self.mapping, f.name) < 0}
+        if negative:
+            raise ValueError(f"mapping indices are SDL axis/button/hat numbers, ≥ 0; got {negative}")
