@@ -407,6 +407,11 @@ class FocalConfig(PreTrainedConfig):
             raise ValueError(
                 f"time_embed_dim must be an even number ≥ 4 (half sines, half cosines), got {self.time_embed_dim}."
             )
+        import torchvision  # already imported by LeRobot's diffusion encoder, which the network uses
+
+        # The RGB encoder replaces a ResNet's pooling and head, so only ResNets fit.
+        resnets = [m for m in torchvision.models.list_models(module=torchvision.models) if m.startswith("resnet")]
+        require_choice("vision_backbone", self.vision_backbone, resnets)
         if self.pretrained_backbone_weights is not None and self.use_group_norm:
             raise ValueError(
                 f"pretrained_backbone_weights={self.pretrained_backbone_weights!r} holds BatchNorm statistics, which "
