@@ -1,5 +1,9 @@
 """Checkpoint metrics of one grid run: open-loop compounding error, TS score, latency per chunk, NFE.
 
+Latency per chunk and NFE are measured the same way for every policy type (focal, diffusion and its variants,
+ACT): a timed ``select_action`` right after ``reset()`` at batch 1, and forward hooks on the network a chunk
+calls (`UNET_CLASS_NAMES`).
+
 Run as its own process by the grid (``python -m lerobot_focal.benchmarks.grid.analyze CKPT HELDOUT_ROOT
 HELDOUT_REPO OUT.json``) so each run's torch threads and memory end with it. The checkpoint is loaded as
 `lerobot-eval` loads one: ``get_policy_class(type).from_pretrained`` plus the saved processors, so every
@@ -19,7 +23,9 @@ import torch
 
 from .metrics import compounding_error, mean_curve, ts_score
 
-UNET_CLASS_NAMES = ("DiffusionConditionalUnet1d",)
+#: The networks whose calls are counted as NFE: the denoising U-Net (focal, diffusion and its variants) and ACT's
+#: whole encoder-decoder transformer (`lerobot.policies.act.modeling_act.ACT`, one call per chunk).
+UNET_CLASS_NAMES = ("DiffusionConditionalUnet1d", "ACT")
 
 
 def load_policy(checkpoint: Path, device: str = "cpu"):
@@ -37,7 +43,8 @@ def load_policy(checkpoint: Path, device: str = "cpu"):
 
 
 def _count_unet_calls(policy) -> list[int]:
-    """Forward hooks on every denoising network of the policy (focal keeps an EMA copy) -> a call counter."""
+    """Forward hooks on every counted network of the policy (focal and diffusion_ema keep an EMA copy) -> a call
+    counter."""
     counter = [0]
     for module in policy.modules():
         if type(module).__name__ in UNET_CLASS_NAMES:

@@ -52,7 +52,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                  "final_episodes"):
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
-    p.add_argument("--lr", type=float, default=None, help="override the preset's learning rate (every method)")
+    p.add_argument("--lr", type=float, default=None,
+                   help="learning rate of every method (replaces the preset's lr and its per-method rates, method_lr)")
     p.add_argument("--demo-seed", dest="demo_seed", type=int, default=None,
                    help=f"first reset seed of the training demos (default {DEMO_SEED}): another set of placements")
     p.add_argument("--periodic-eval", dest="periodic_eval", choices=PERIODIC_EVALS, default=None,
@@ -127,6 +128,9 @@ def specs_of_grid(out: Path, work: Path) -> dict[str, RunSpec]:
 
 #: Preset fields that do not change what a run measures, left out when two invocations' presets are compared.
 _DESCRIPTIVE_PRESET_FIELDS = ("notes",)
+#: Preset fields an override makes irrelevant: with --lr every method trains at it, whatever method_lr says (so
+#: a sweep resumes after a chosen rate is recorded in the preset).
+_SUPERSEDED = {"lr": ("method_lr",)}
 
 
 def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
@@ -146,9 +150,11 @@ def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
     old_over, new_over = canonical(previous.get("overrides", {})), canonical(grid["overrides"])
     differing = [(f"--{k.replace('_', '-')}", old_over.get(k), new_over.get(k))
                  for k in sorted(old_over.keys() | new_over.keys()) if old_over.get(k) != new_over.get(k)]
+    overridden = set(old_over) | set(new_over)
+    superseded = {field for over in overridden & set(_SUPERSEDED) for field in _SUPERSEDED[over]}
     differing += [(f"preset {k}", old_preset[k], new_preset[k])
                   for k in sorted(old_preset.keys() & new_preset.keys())
-                  if k not in _DESCRIPTIVE_PRESET_FIELDS + ("overridden",) + tuple(old_over) + tuple(new_over)
+                  if k not in {*_DESCRIPTIVE_PRESET_FIELDS, "overridden", *overridden, *superseded}
                   and old_preset[k] != new_preset[k]]
     if differing:
         shown = "; ".join(f"{name}: {old!r} there, {new!r} now" for name, old, new in differing)

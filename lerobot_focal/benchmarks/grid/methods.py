@@ -1,9 +1,13 @@
 """Every method of the comparison, as the `lerobot-train` arguments that select it.
 
-All methods share the preset's U-Net size, optimiser settings, batch size and step budget, so a difference in
-the results is a difference of method. focal's ablations are its own config switches (`--policy.ablation`, see
-`lerobot_focal.policy.configuration_focal.ABLATIONS`); `diffusion` is LeRobot's policy unchanged, sampled with
-DDIM in 10 steps; `diffusion_fco` is the plugin's "DP w. FCO" (LeRobot's diffusion plus the FCO loss).
+All methods share the preset's U-Net size, warm-up, batch size and step budget, and its learning rate unless
+the preset gives a method its own (``method_lr``: the baselines "at their own best", each at the rate a sweep
+chose for it), so a difference in the results is a difference of method. focal's ablations are its own config
+switches (`--policy.ablation`, see `lerobot_focal.policy.configuration_focal.ABLATIONS`); `diffusion` is
+LeRobot's policy unchanged, sampled with DDIM in 10 steps; `diffusion_fco` is the plugin's "DP w. FCO"
+(LeRobot's diffusion plus the FCO loss); `diffusion_ema` is LeRobot's diffusion with an EMA copy on DP3's
+schedule, acting with the EMA weights (`lerobot_focal.policy.diffusion_ema`), as DP and DP3 are evaluated;
+`act` is LeRobot's ACT with its defaults except what `_act_inputs` lists (chunk length, and width on a CPU).
 
 Consistency target θ⁻: each method gets the one its own authors use. focal follows the paper (EMA); the
 FlowPolicy-style ablations (adjacent anchors r = τ + Δ) use the online weights under stop-gradient, as
@@ -28,17 +32,23 @@ class Method:
     policy_type: str
     extra: tuple[str, ...] = ()
     obs_type: str | None = None  # focal_metaworld obs_type for this method's data and env; None = the preset's
+    # Its authors' learning rate, where it is not the preset's: used unless the preset's method_lr names one for
+    # this method or --lr sets every method's (GridPreset.lr_for).
+    own_lr: float | None = None
 
     def train_args(self, preset: GridPreset) -> list[str]:
-        dims = "[" + ",".join(str(d) for d in preset.down_dims) + "]"
-        common = [
-            f"--policy.type={self.policy_type}",
-            f"--policy.down_dims={dims}",
-            f"--policy.optimizer_lr={preset.lr}",
-            f"--policy.scheduler_warmup_steps={preset.warmup_steps}",
-            f"--policy.device={preset.device}",
-            "--policy.push_to_hub=false",
-        ]
+        lr = preset.lr_for(self.name, self.own_lr)
+        if self.policy_type in _TRANSFORMERS:  # no U-Net and no scheduler (ACT trains at a constant lr)
+            common = [f"--policy.type={self.policy_type}", f"--policy.optimizer_lr={lr}"]
+        else:
+            dims = "[" + ",".join(str(d) for d in preset.down_dims) + "]"
+            common = [
+                f"--policy.type={self.policy_type}",
+                f"--policy.down_dims={dims}",
+                f"--policy.optimizer_lr={lr}",
+                f"--policy.scheduler_warmup_steps={preset.warmup_steps}",
+            ]
+        common += [f"--policy.device={preset.device}", "--policy.push_to_hub=false"]
         return common + _INPUTS[self.policy_type](preset, self.obs_type_for(preset)) + list(self.extra)
 
     def obs_type_for(self, preset: GridPreset) -> str:
@@ -55,12 +65,16 @@ def _focal_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     return args + [f"--policy.use_env_state={str(use_env_state).lower()}", "--policy.use_images=false"]
 
 
-def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+def _require_env_state(preset: GridPreset, policy: str) -> None:
     if not preset.env_state:
         raise ValueError(
-            f"preset {preset.name!r} gives no observation.environment_state, and LeRobot's diffusion needs it (or "
+            f"preset {preset.name!r} gives no observation.environment_state, and LeRobot's {policy} needs it (or "
             "images): set env_state in the preset"
         )
+
+
+def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+    _require_env_state(preset, "diffusion")
     # DP/DP3's chunking: 2 observations, 16-step horizon, 8 executed; DDIM with 10 steps at inference.
     return [
         "--policy.n_obs_steps=2",
@@ -71,11 +85,41 @@ def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     ]
 
 
+#: ACT's chunk in a 200-step MetaWorld episode (see `_act_inputs`).
+ACT_CHUNK = 50
+
+
+def _act_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+    """LeRobot's ACT with its defaults (one observation step, VAE with KL weight 10, 4 + 1 transformer layers,
+    4-layer VAE encoder, dropout 0.1, AdamW 1e-5 with weight decay 1e-4 at a constant lr, no temporal
+    ensembling, mean-std normalisation), on the same state + object-pose inputs, except:
+
+    * chunk_size = n_action_steps = 50 instead of 100. A MetaWorld episode is 200 steps: with 100 the policy
+      re-plans once per episode, after half of it blind; ACT's 100 is a quarter of its 400-step simulated
+      ALOHA episodes (transfer-cube), and 50 keeps that share, so it re-plans 4 times per episode as there.
+    * dim_model / dim_feedforward from the preset's ``act_width`` (CPU presets: 128 / 800 instead of 512 /
+      3200, the same 6.25 ratio; 2.5 M parameters, near focal's 1.8 M at U-Net 32/64/128). ACT's default size
+      (40 M parameters without an image backbone) takes 4.7 s per batch-64 step at chunk 50 on one of these
+      CPU cores, 10 h for the 8000 steps of a CPU preset; the CPU presets shrink every network (the U-Net is
+      32/64/128 instead of 512/1024/2048) and this is ACT's share of that. ``None`` keeps ACT's default size.
+    """
+    _require_env_state(preset, "ACT")
+    args = [f"--policy.chunk_size={ACT_CHUNK}", f"--policy.n_action_steps={ACT_CHUNK}"]
+    if preset.act_width is not None:
+        dim_model, dim_feedforward = preset.act_width
+        args += [f"--policy.dim_model={dim_model}", f"--policy.dim_feedforward={dim_feedforward}"]
+    return args
+
+
 _INPUTS: dict[str, Callable[[GridPreset, str], list[str]]] = {
     "focal": _focal_inputs,
     "diffusion": _diffusion_inputs,
     "diffusion_fco": _diffusion_inputs,
+    "diffusion_ema": _diffusion_inputs,
+    "act": _act_inputs,
 }
+#: Policy types without a U-Net or a learning-rate schedule: no --policy.down_dims / scheduler flags.
+_TRANSFORMERS = ("act",)
 
 
 ONLINE = "--policy.consistency_target=online"
@@ -112,6 +156,9 @@ METHODS: dict[str, Method] = {
                ("--policy.ablation=wo_fco_las", "--policy.cfm_num_segments=1", ONLINE)),
         Method("diffusion", "DP (DDIM 10)", "diffusion"),
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
+        # DP as its authors (and DP3's) evaluate it: an EMA copy on DP3's schedule, acting with the EMA weights.
+        Method("diffusion_ema", "DP with EMA (DDIM 10)", "diffusion_ema"),
+        Method("act", "ACT", "act", own_lr=1e-5),  # ACT's default lr (its authors'), with no schedule
     ]
 }
 
@@ -128,12 +175,21 @@ PLATEAU_PHASES: tuple[tuple[str, ...], ...] = (
     ("focal_online", "wo_las", "diffusion_fco"),
     ("focal_pc",),
 )
+#: The grid with every baseline at its own best (issue 31), in phases: the first answers the main question
+#: (focal against diffusion with EMA and ACT, each at its own learning rate), the second adds the FlowPolicy
+#: objective, which the plateau grid already measured with the other estimator.
+FAIR_PHASES: tuple[tuple[str, ...], ...] = (
+    ("focal", "diffusion_ema", "act"),
+    ("wo_fco_las",),
+)
+_PHASE_SETS = {"plateau": PLATEAU_PHASES, "fair": FAIR_PHASES}
 
 
 def resolve_method_phases(spec: str) -> list[list[Method]]:
     """Methods in run phases: ``a,b|c`` runs every (task, seed) of a and b before any of c. ``plateau`` expands
-    to :data:`PLATEAU_PHASES`, ``core`` and ``all`` to one phase each. A method appears once, in its first phase."""
-    choices = f"core, all, plateau, {', '.join(METHODS)}"
+    to :data:`PLATEAU_PHASES`, ``fair`` to :data:`FAIR_PHASES`, ``core`` and ``all`` to one phase each. A method
+    appears once, in its first phase."""
+    choices = f"core, all, plateau, fair, {', '.join(METHODS)}"
     phases: list[list[str]] = []
     seen: set[str] = set()
     for phase_spec in spec.split("|"):
@@ -141,8 +197,8 @@ def resolve_method_phases(spec: str) -> list[list[Method]]:
         for item in (s.strip() for s in phase_spec.split(",")):
             if not item:
                 continue
-            if item == "plateau":
-                for extra in PLATEAU_PHASES:
+            if item in _PHASE_SETS:
+                for extra in _PHASE_SETS[item]:
                     phases.append([m for m in extra if m not in seen])
                     seen.update(extra)
                 continue

@@ -68,13 +68,27 @@ class GridPreset:
     # Every training seed learns from its own demos (seeds demo_seed + 1000·k …, their own data folder), so the
     # spread over seeds includes the draw of the demos; False: every seed learns from the same demos.
     demos_per_seed: bool = False
+    # Learning rates of single methods, (method, lr) pairs: each baseline at the rate a sweep chose for it (or its
+    # authors' default, see methods.py); every other method trains at ``lr``. ``--lr`` sets every method's.
+    method_lr: tuple[tuple[str, float], ...] = ()
+    # ACT's transformer width (dim_model, dim_feedforward); None = ACT's defaults (512, 3200).
+    act_width: tuple[int, int] | None = None
 
     # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
     overridden: tuple[str, ...] = ()
 
     def with_overrides(self, **kwargs) -> GridPreset:
         changed = {k: v for k, v in kwargs.items() if v is not None and v != getattr(self, k)}
-        return replace(self, **changed, overridden=tuple(sorted(set(self.overridden) | set(changed))))
+        # A given lr is an override even at the preset's value: it replaces every method's own rate (method_lr).
+        marked = set(changed) | ({"lr"} if kwargs.get("lr") is not None else set())
+        return replace(self, **changed, overridden=tuple(sorted(set(self.overridden) | marked)))
+
+    def lr_for(self, method: str, own_lr: float | None = None) -> float:
+        """The learning rate `method` trains at: ``--lr`` if given (every method), else the preset's rate for
+        that method (``method_lr``), else the method's own default (`own_lr`, e.g. ACT's authors'), else ``lr``."""
+        if "lr" in self.overridden:
+            return self.lr
+        return dict(self.method_lr).get(method, self.lr if own_lr is None else own_lr)
 
     def _folder(self, fields: tuple[str, ...] | None = None) -> str:
         parts = [f"{k}={_folder_value(getattr(self, k))}" for k in self.overridden if fields is None or k in fields]
@@ -130,6 +144,7 @@ PRESETS: dict[str, GridPreset] = {
         device="cpu",
         num_threads=1,
         focal_encoder_dim=64,  # as configs/focal_cpu.json
+        act_width=(128, 800),  # ACT shrunk like the U-Net (methods._act_inputs)
         notes=(
             "CPU preset (scaled down from the paper): 400 steps at batch 64 instead of ~47k at 128; 10 evaluation "
             "episodes every 80 steps instead of 20 (5 evaluations, so top-5 is their mean); U-Net 32/64/128 instead of 512/1024/2048; low-dimensional "
@@ -155,6 +170,7 @@ PRESETS: dict[str, GridPreset] = {
         device="cpu",
         num_threads=1,
         focal_encoder_dim=64,
+        act_width=(128, 800),
         final_episodes=50,
         # focal on 512-point clouds: a run costs 5-10x a low-dimensional one on a CPU (ray casting, the encoder).
         seed_caps=(("focal_pc", 2),),
@@ -167,14 +183,18 @@ PRESETS: dict[str, GridPreset] = {
             "every method unless the method says otherwise; seeds 0, 1, 2 (focal on point clouds: 0, 1)."
         ),
     )),
-    # cpu_plateau with the paper's estimator and the draw of the demos in the spread over seeds. Other engineers
-    # add methods (diffusion_ema, act) and a longer budget here: change steps/eval_every/notes of this entry and
-    # put the new methods in methods.py; nothing else in the grid depends on this preset's values.
+    # cpu_plateau with the paper's estimator, the draw of the demos in the spread over seeds, and every baseline at
+    # its own best. Its methods: `--methods fair` (methods.FAIR_PHASES), focal, diffusion_ema and act first (the
+    # main question), then wo_fco_las. Learning rates: focal and wo_fco_las at `lr`; diffusion_ema and act at the
+    # rates of the sweep in docs/benchmarks/lr_sweep_fair (method_lr; until a sweep result is recorded there, act
+    # trains at its authors' 1e-5 and diffusion_ema at `lr`). A longer budget (issue 31 item 4) changes
+    # steps/eval_every/notes of this entry; nothing else in the grid depends on this preset's values.
     "cpu_fair": replace(
         _CPU_PLATEAU,
         name="cpu_fair",
         periodic_eval="fresh",
         demos_per_seed=True,
+        method_lr=(),
         notes=(
             "CPU preset with the paper's estimator: as cpu_plateau (10 full-length demos, 8000 steps at batch 64, "
             "20 evaluation episodes every 500 steps, top-5, the final checkpoint on 50 fresh episodes, U-Net "

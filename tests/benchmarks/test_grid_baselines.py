@@ -1,0 +1,97 @@
+"""The baselines at their own best (issue 31): `diffusion_ema` and LeRobot's `act` as grid methods, each at its
+own learning rate, and the `fair` phases; end to end at toy scale, with latency and NFE measured for both."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from lerobot_focal.benchmarks.grid import driver
+from lerobot_focal.benchmarks.grid.driver import build_specs, merged_grid, parse_args
+from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK, METHODS, resolve_method_phases
+from lerobot_focal.benchmarks.grid.presets import PRESETS
+from lerobot_focal.benchmarks.grid.results import ResultsFile
+from tests.benchmarks.test_grid_runs import TINY_ARGS, work  # noqa: F401  (the module's tiny reach datasets)
+
+
+def _args(method: str, preset) -> list[str]:
+    return METHODS[method].train_args(preset)
+
+
+def test_act_is_lerobots_act_with_the_changes_its_docstring_lists():
+    args = _args("act", PRESETS["cpu_fair"])
+    assert args[0] == "--policy.type=act"
+    assert f"--policy.chunk_size={ACT_CHUNK}" in args and f"--policy.n_action_steps={ACT_CHUNK}" in args
+    assert "--policy.dim_model=128" in args and "--policy.dim_feedforward=800" in args
+    assert "--policy.optimizer_lr=1e-05" in args  # ACT's authors' rate, not the preset's 1e-3
+    # ACT has no U-Net and no scheduler: LeRobot would refuse those flags.
+    assert not any(a.startswith(("--policy.down_dims", "--policy.scheduler")) for a in args)
+    assert not any("n_obs_steps" in a for a in args)  # ACT takes one observation step
+    paper = _args("act", PRESETS["paper"])
+    assert not any("dim_model" in a or "dim_feedforward" in a for a in paper)  # ACT's default size on a GPU
+    with pytest.raises(ValueError, match="environment_state"):
+        _args("act", PRESETS["cpu"].with_overrides(env_state=False))
+
+
+def test_diffusion_ema_gets_dp3_chunking_and_ddim_10():
+    args = _args("diffusion_ema", PRESETS["cpu_fair"])
+    assert args[0] == "--policy.type=diffusion_ema"
+    for flag in ("--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8",
+                 "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=10",
+                 "--policy.down_dims=[32,64,128]", "--policy.scheduler_warmup_steps=100"):
+        assert flag in args
+
+
+def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):
+    preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),))
+    assert preset.lr_for("diffusion_ema") == 3e-4 and preset.lr_for("focal") == preset.lr
+    assert preset.lr_for("act", 1e-5) == 1e-5 and preset.with_overrides(method_lr=(("act", 1e-4),)).lr_for("act", 1e-5) == 1e-4
+
+    def spec(*extra):
+        argv = ["--preset", "cpu_fair", "--tasks", "disassemble", "--methods", "diffusion_ema,act", "--seeds", "0",
+                "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work"), *extra]
+        return build_specs(parse_args(argv))
+
+    plain, _ = spec()
+    # --lr sets every method's rate, ACT's and the preset's per-method ones included, even at the preset's value,
+    # and keeps its runs in their own folder.
+    for lr in ("1e-3", "1e-4"):
+        specs, grid = spec("--lr", lr)
+        for s in specs:
+            assert f"--policy.optimizer_lr={float(lr)}" in METHODS[s.method].train_args(s.preset)
+            assert s.run_dir.parts[-4] == f"cpu_fair+lr={float(lr)}" and s.data == plain[0].data
+    # A sweep's results directory accepts its next invocation after a chosen rate is recorded in the preset.
+    recorded = json.loads(json.dumps(grid, default=str))
+    later = json.loads(json.dumps(grid, default=str))
+    later["preset"]["method_lr"] = [["diffusion_ema", 3e-4]]
+    assert merged_grid(recorded, later, tmp_path)["methods"] == ["diffusion_ema", "act"]
+    without_lr = json.loads(json.dumps(spec()[1], default=str))
+    changed = json.loads(json.dumps(without_lr))
+    changed["preset"]["method_lr"] = [["diffusion_ema", 3e-4]]
+    with pytest.raises(SystemExit, match="method_lr"):  # without --lr the per-method rates are what runs measure
+        merged_grid(without_lr, changed, tmp_path)
+
+
+def test_fair_phases_answer_the_main_question_first():
+    phases = [[m.name for m in p] for p in resolve_method_phases("fair")]
+    assert phases == [["focal", "diffusion_ema", "act"], ["wo_fco_las"]]
+
+
+@pytest.mark.parametrize(("method", "nfe"), [("diffusion_ema", 10.0), ("act", 1.0)])
+def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, nfe):  # noqa: F811
+    out = tmp_path / "out"
+    assert driver.main([*TINY_ARGS, "--preset", "cpu_fair", "--methods", method, "--out", str(out),
+                        "--work", str(work), "--final-episodes", "2"]) == 0
+    (record,) = ResultsFile(out / "results.jsonl").records()
+    assert record["status"] == "ok" and record["key"] == f"reach|{method}|0"
+    assert [c["step"] for c in record["curve"]] == [2, 4] and record["fresh_episodes"] == 2
+    assert record["nfe"] == nfe  # network calls per chunk, counted by hooks (EMA and online alike)
+    assert record["latency_ms"] > 0
+    cfg = json.loads(next(Path(record["run_dir"]).rglob("pretrained_model/config.json")).read_text())
+    assert cfg["type"] == method
+    if method == "act":
+        assert cfg["chunk_size"] == ACT_CHUNK and cfg["dim_model"] == 128 and cfg["optimizer_lr"] == 1e-5
+    else:
+        assert cfg["use_ema"] is True and cfg["num_inference_steps"] == 10
