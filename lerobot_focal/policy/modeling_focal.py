@@ -25,6 +25,7 @@ from lerobot_focal.policy.configuration_focal import FocalConfig
 from lerobot_focal.policy.ema import ema_decay, ema_update_, frozen_copy  # noqa: F401  (ema_decay: re-exported)
 from lerobot_focal.policy.encoders import ObservationEncoder
 from lerobot_focal.policy.input_checks import check_dataset_stats
+from lerobot_focal.policy.lerobot_compat import lerobot_model_card
 from lerobot_focal.policy.network import VelocityUnet
 from lerobot_focal.policy.objective import consistency_loss
 from lerobot_focal.policy.stats import adapt_dataset_stats
@@ -130,10 +131,11 @@ class FocalPolicy(PreTrainedPolicy):
 
     def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
         """LeRobot's card (data, commands, features) plus what `focal` is: LeRobot's template only describes
-        the policy types it ships, and names any other type "a focal policy"."""
+        the policy types it ships, and names any other type "a focal policy". LeRobot's main branch renders its
+        card with a free function instead of this method (docs/compatibility.md); this method uses either."""
         tags = sorted(set(tags or []) | set(MODEL_CARD_TAGS))
-        card = super().generate_model_card(dataset_repo_id, model_type, license or "apache-2.0", tags, cfg=cfg,
-                                           dataset_meta=dataset_meta)
+        card = lerobot_model_card(super(), self.config, dataset_repo_id, model_type, license or "apache-2.0", tags,
+                                  cfg=cfg, dataset_meta=dataset_meta)
         generic = f"This is a **{model_type}** policy trained with"
         text = card.text
         if generic in text:

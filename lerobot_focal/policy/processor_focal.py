@@ -26,6 +26,7 @@ from lerobot_focal.policy.depth_pointcloud_step import (  # noqa: F401  (re-expo
     make_depth_to_pointcloud_step,
 )
 from lerobot_focal.policy.input_checks import FocalInputShapeStep, check_dataset_stats
+from lerobot_focal.policy.lerobot_compat import refuse_stacked_ema
 from lerobot_focal.policy.stats import adapt_dataset_stats
 
 
@@ -36,6 +37,9 @@ def make_focal_pre_post_processors(
     PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
+    # lerobot-train (LeRobot main) builds the processors after the policy and before its own EMA: refuse a second
+    # EMA here, before the first step.
+    refuse_stacked_ema(config)
     # Before any statistic is used or adapted: a NaN/inf in the data shows up here as non-finite stats.
     meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
     check_dataset_stats(dataset_stats, [*config.used_observation_keys, ACTION], meta)

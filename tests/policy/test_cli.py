@@ -62,7 +62,11 @@ def test_train_saves_checkpoints_with_processors(trained_run):
     _, _, out, first = trained_run
     log = first.stdout + first.stderr
     assert "focal" in log
-    assert "columns cached in memory" in log  # LEROBOT_FOCAL_FAST_READER=1 reached lerobot-train via the plugin
+    # LEROBOT_FOCAL_FAST_READER=1 reached lerobot-train via the plugin; on a LeRobot whose reader differs from the
+    # verified one (e.g. its main branch, docs/compatibility.md) it says so and training reads the stock way.
+    from lerobot_focal.datasets.fast_reader import compatible
+
+    assert ("columns cached in memory" if compatible()[0] else "fast reader NOT installed") in log
     for step in ("000002", "000004"):
         model_dir = out / "checkpoints" / step / "pretrained_model"
         for name in ("config.json", "model.safetensors", "train_config.json"):
