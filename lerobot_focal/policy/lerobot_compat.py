@@ -8,8 +8,8 @@ its version number; docs/compatibility.md lists them.
   the config.
 * EMA: main's ``lerobot-train`` has a global ``--ema.enable`` that keeps a shadow of *all* ``policy.parameters()``
   (focal's own ``ema_model`` included) and evaluates and pushes it. focal keeps its own EMA as the paper's
-  consistency target θ⁻ and its inference weights, so the two would average each other silently:
-  :func:`refuse_stacked_ema` stops such a run.
+  consistency target θ⁻ and its inference weights (diffusion_ema as its inference weights), so the two would
+  average each other silently: :func:`refuse_stacked_ema` stops such a run.
 """
 
 from __future__ import annotations
@@ -52,21 +52,30 @@ def running_train_config(policy_config: Any) -> Any | None:
     return None
 
 
+# Per policy type with an EMA of its own: what that EMA is for, and the flags that leave LeRobot's EMA alone.
+_OWN_EMA = {
+    "focal": ("the paper's consistency target and the weights focal acts with",
+              "--policy.use_ema=false --policy.consistency_target=online"),
+    "diffusion_ema": ("the weights diffusion_ema acts with", "--policy.use_ema=false"),
+}
+
+
 def refuse_stacked_ema(policy_config: Any) -> None:
-    """Stop a ``lerobot-train`` run that has LeRobot's ``--ema.enable=true`` (LeRobot main) and focal's own EMA
-    (``use_ema``, the default) on, instead of keeping two EMAs of one network. No-op on 0.6.1, which has no
-    ``--ema``, and outside ``lerobot-train``."""
+    """Stop a ``lerobot-train`` run that has LeRobot's ``--ema.enable=true`` (LeRobot main) and the policy's own
+    EMA (``use_ema``, the default of focal and diffusion_ema) on, instead of keeping two EMAs of one network.
+    No-op on 0.6.1, which has no ``--ema``, and outside ``lerobot-train``."""
     if not getattr(policy_config, "use_ema", False):
         return
     cfg = running_train_config(policy_config)
     ema = getattr(cfg, "ema", None)
     if ema is None or not getattr(ema, "enable", False):
         return
+    kind = policy_config.type
+    role, alone = _OWN_EMA.get(kind, (f"the weights {kind} acts with", "--policy.use_ema=false"))
     raise ValueError(
-        "--ema.enable=true adds LeRobot's EMA of every policy parameter beside focal's own EMA "
-        "(--policy.use_ema=true, the default: the paper's consistency target and the weights focal acts with). "
-        "Two EMAs of one network do not stack: LeRobot's would also average focal's EMA copy, and evaluate and "
-        "push a shadow the consistency target never saw. Fix: drop --ema.enable=true (focal's EMA is saved in "
-        "model.safetensors and used for evaluation already), or use LeRobot's EMA alone with "
-        "--policy.use_ema=false --policy.consistency_target=online."
+        f"--ema.enable=true adds LeRobot's EMA of every policy parameter beside {kind}'s own EMA "
+        f"(--policy.use_ema=true, the default: {role}). Two EMAs of one network do not stack: LeRobot's would "
+        "also average the policy's EMA copy, and evaluate and push a shadow of it. Fix: drop --ema.enable=true "
+        f"(the policy's EMA is saved in model.safetensors and used for evaluation already), or use LeRobot's EMA "
+        f"alone with {alone}."
     )

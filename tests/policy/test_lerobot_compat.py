@@ -71,6 +71,15 @@ def test_two_emas_are_refused_and_one_is_fine():
     assert running_train_config(policy_config) is None
 
 
+def test_diffusion_ema_refuses_the_second_ema_too():
+    from lerobot_focal.policy.diffusion_ema import DiffusionEmaConfig
+
+    with pytest.raises(ValueError, match=r"beside diffusion_ema's own EMA.*alone with --policy.use_ema=false\."):
+        _build_inside_train(DiffusionEmaConfig(), ema_enable=True)
+    plain = DiffusionEmaConfig(use_ema=False, use_ema_for_inference=False)
+    assert _build_inside_train(plain, ema_enable=True).policy is plain
+
+
 def _train(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
     root = tmp_path / "dataset"
     if not root.exists():

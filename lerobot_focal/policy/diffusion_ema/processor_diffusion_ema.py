@@ -13,6 +13,7 @@ from lerobot.policies.diffusion.processor_diffusion import make_diffusion_pre_po
 from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 
 from lerobot_focal.policy.diffusion_ema.configuration_diffusion_ema import DiffusionEmaConfig
+from lerobot_focal.policy.lerobot_compat import refuse_stacked_ema
 
 
 def make_diffusion_ema_pre_post_processors(
@@ -23,4 +24,5 @@ def make_diffusion_ema_pre_post_processors(
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
     """The ``diffusion`` policy's pipelines (normalise inputs/action, batch, device; unnormalise action)."""
+    refuse_stacked_ema(config)  # lerobot-train (LeRobot main) with --ema.enable=true: see lerobot_compat
     return make_diffusion_pre_post_processors(config, dataset_stats)
