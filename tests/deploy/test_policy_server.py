@@ -7,7 +7,6 @@ save_pretrained and processor factory, deterministic chunks); the robot is the U
 The end-to-end run with LeRobot's robot_client process is tests/deploy/test_async_inference.py.
 """
 
-import json
 import pickle
 import re
 from pathlib import Path
@@ -15,74 +14,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 
-from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
+from lerobot_focal.policy import FocalPolicy
+from tests.deploy.helpers import (
+    ACTION_NAMES, ENV_NAMES, JOINTS, STATE_NAMES, TCP, dataset_features, random_checkpoint, raw_observation,
+    robot_features,
+)
 
 grpc = pytest.importorskip("grpc", reason="the async extra: pip install -e '.[async]'")
 
-JOINTS = ["shoulder_pan.pos", "shoulder_lift.pos", "elbow.pos", "wrist_1.pos", "wrist_2.pos", "wrist_3.pos"]
-TCP = [f"ee_{a}.pos" for a in ("x", "y", "z", "roll", "pitch", "yaw")]
-STATE_NAMES = [*JOINTS, "gripper.pos"]  # the dataset's observation.state: joints + gripper
-ENV_NAMES = TCP[:3]  # ... and its observation.environment_state: a pose (here the TCP's position)
-ACTION_NAMES = ["ee_x.vel", "ee_y.vel", "ee_z.vel", "ee_roll.vel", "ee_pitch.vel", "ee_yaw.vel", "gripper.pos"]
-CAMERA = (24, 32)
-
-
-def _robot_features() -> dict[str, dict]:
-    """What LeRobot's robot_client sends as lerobot_features for the UR-10e twin (its observation features)."""
-    from lerobot.async_inference.helpers import map_robot_keys_to_lerobot_features
-
-    from lerobot_focal.robots.ur10e.config_ur10e import UR10eConfig
-    from lerobot_focal.robots.ur10e.ur10e import UR10e
-
-    robot = UR10e(UR10eConfig(backend="sim", sim_camera_height=CAMERA[0], sim_camera_width=CAMERA[1]))
-    return map_robot_keys_to_lerobot_features(robot)
-
-
-def _raw(step: int) -> dict:
-    """One raw UR-10e observation as robot.get_observation() returns it (floats, RGB, uint16 depth)."""
-    rng = np.random.default_rng(step)
-    obs = {k: float(v) for k, v in zip([*JOINTS, *TCP, "gripper.pos"], 0.1 * step + rng.uniform(-1, 1, 13))}
-    obs["front"] = rng.integers(0, 255, (*CAMERA, 3), dtype=np.uint8)
-    obs["front_depth"] = rng.integers(500, 2000, (*CAMERA, 1), dtype=np.uint16)
-    obs["task"] = "move the arm"
-    return obs
-
-
-def _dataset_features() -> dict[str, dict]:
-    vec = lambda names: {"dtype": "float32", "shape": [len(names)], "names": names}  # noqa: E731
-    return {"action": vec(ACTION_NAMES), OBS_STATE: vec(STATE_NAMES), OBS_ENV_STATE: vec(ENV_NAMES)}
-
-
-def _checkpoint(path: Path, env_names: list[str] = ENV_NAMES) -> Path:
-    """A random-weights focal checkpoint (state 7 + environment state 3 -> 7-d action) whose train_config.json
-    names a dataset folder with the feature names."""
-    dataset = path.parent / "dataset"
-    (dataset / "meta").mkdir(parents=True)
-    features = {**_dataset_features(), OBS_ENV_STATE: {"dtype": "float32", "shape": [3], "names": env_names}}
-    (dataset / "meta" / "info.json").write_text(json.dumps({"features": features}))
-    cfg = FocalConfig(
-        device="cpu", down_dims=(16, 32), use_env_state=True, inference_noise_scale=0.0,
-        input_features={OBS_STATE: PolicyFeature(FeatureType.STATE, (7,)),
-                        OBS_ENV_STATE: PolicyFeature(FeatureType.STATE, (3,))},
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
-    )
-    torch.manual_seed(0)
-    policy = FocalPolicy(cfg)
-    stats = {k: {"min": torch.full((d,), -2.0), "max": torch.full((d,), 2.0)}
-             for k, d in ((OBS_STATE, 7), (OBS_ENV_STATE, 3), ("action", 7))}
-    pre, post = make_focal_pre_post_processors(cfg, dataset_stats=stats)
-    for part in (policy, pre, post):
-        part.save_pretrained(path)
-    (path / "train_config.json").write_text(json.dumps({"dataset": {"repo_id": "local/x", "root": str(dataset)}}))
-    return path
-
-
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
-    return _checkpoint(tmp_path_factory.mktemp("ckpt") / "pretrained_model")
+    return random_checkpoint(tmp_path_factory.mktemp("ckpt") / "pretrained_model")
 
 
 @pytest.fixture
@@ -111,12 +55,12 @@ def _config():
     return cfg
 
 
-def _connect(stub, checkpoint: Path, policy_type: str = "focal", robot_features: dict | None = None):
+def _connect(stub, checkpoint: Path, policy_type: str = "focal"):
     from lerobot.async_inference.helpers import RemotePolicyConfig
     from lerobot.transport import services_pb2
 
     stub.Ready(services_pb2.Empty())
-    specs = RemotePolicyConfig(policy_type, str(checkpoint), robot_features or _robot_features(), 4, "cpu")
+    specs = RemotePolicyConfig(policy_type, str(checkpoint), robot_features(), 4, "cpu")
     stub.SendPolicyInstructions(services_pb2.PolicySetup(data=pickle.dumps(specs)))
 
 
@@ -147,7 +91,7 @@ def _sync_chunks(checkpoint: Path, frames: list[dict]) -> list[np.ndarray]:
 
     policy = FocalPolicy.from_pretrained(checkpoint)
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
-    features = _dataset_features()
+    features = dataset_features()
     engine = SyncInferenceEngine(policy, pre, post, features, ACTION_NAMES, "move the arm", "cpu", "ur10e")
     engine.reset()
     actions = [engine.get_action(build_dataset_frame(features, raw, prefix="observation")).numpy() for raw in frames]
@@ -159,8 +103,8 @@ def test_state_and_environment_state_come_from_the_training_datasets_names():
 
     needs = InputNeeds(keys=(OBS_STATE, OBS_ENV_STATE, "observation.images.front"),
                        shapes={OBS_STATE: (7,), OBS_ENV_STATE: (3,), "observation.images.front": (3, 12, 16)})
-    plan = plan_observation(needs, _robot_features(), _dataset_features())
-    raw = _raw(3)
+    plan = plan_observation(needs, robot_features(), dataset_features())
+    raw = raw_observation(3)
     frame = plan.frame(raw)
     np.testing.assert_array_equal(frame[OBS_STATE], np.float32([raw[k] for k in STATE_NAMES]))
     np.testing.assert_array_equal(frame[OBS_ENV_STATE], np.float32([raw[k] for k in ENV_NAMES]))
@@ -169,7 +113,7 @@ def test_state_and_environment_state_come_from_the_training_datasets_names():
     batch = plan.to_policy_input(frame, "cpu", "t")
     assert batch["observation.images.front"].shape == (1, 3, 12, 16) and batch[OBS_STATE].shape == (1, 7)
     # Without the dataset, observation.state is the robot's 13 floats, as LeRobot records them.
-    plan = plan_observation(InputNeeds(keys=(OBS_STATE,), shapes={OBS_STATE: (13,)}), _robot_features())
+    plan = plan_observation(InputNeeds(keys=(OBS_STATE,), shapes={OBS_STATE: (13,)}), robot_features())
     assert plan.vectors[OBS_STATE] == (*JOINTS, *TCP, "gripper.pos")
 
 
@@ -180,9 +124,9 @@ def test_what_the_robot_lacks_is_listed_with_the_fix():
         keys=(OBS_STATE, OBS_ENV_STATE, "observation.images.wrist", "observation.images.front_depth"),
         shapes={OBS_STATE: (9,)}, depth_sizes={"observation.images.front_depth": (48, 64)},
     )
-    features = {**_dataset_features(), OBS_ENV_STATE: {"dtype": "float32", "shape": [2], "names": ["cube_x", "cube_y"]}}
+    features = {**dataset_features(), OBS_ENV_STATE: {"dtype": "float32", "shape": [2], "names": ["cube_x", "cube_y"]}}
     with pytest.raises(ObservationMismatchError) as err:
-        plan_observation(needs, _robot_features(), features)
+        plan_observation(needs, robot_features(), features)
     text = str(err.value)
     assert "'observation.state': the checkpoint reads 9 values" in text
     assert "the robot sends no ['cube_x', 'cube_y']" in text
@@ -190,14 +134,14 @@ def test_what_the_robot_lacks_is_listed_with_the_fix():
     assert "48x64 depth camera, the robot's 'front_depth' is 24x32" in text
     assert "cameras ['front', 'front_depth']" in text
     with pytest.raises(ObservationMismatchError, match="--dataset_root"):
-        plan_observation(InputNeeds(keys=(OBS_ENV_STATE,), shapes={}), _robot_features())
+        plan_observation(InputNeeds(keys=(OBS_ENV_STATE,), shapes={}), robot_features())
 
 
 def test_chunks_use_both_frames_and_match_the_synchronous_rollout(server, checkpoint):
     stub, servicer = server
     _connect(stub, checkpoint)
     assert servicer.stacks_history and servicer.n_obs_steps == 2
-    raws = [_raw(i) for i in range(5)]
+    raws = [raw_observation(i) for i in range(5)]
     # Session start: frame 0 (nothing executed yet) -> actions 0..3, all of which the client executes.
     _send(stub, 0, raws[0], must_go=True)
     first = _get(stub)
@@ -223,21 +167,21 @@ def test_chunks_use_both_frames_and_match_the_synchronous_rollout(server, checkp
 def test_a_new_client_starts_a_new_history(server, checkpoint):
     stub, _ = server
     _connect(stub, checkpoint)
-    _send(stub, 0, _raw(0), must_go=True)
+    _send(stub, 0, raw_observation(0), must_go=True)
     _get(stub)
-    _send(stub, 0, _raw(1), must_go=True)
+    _send(stub, 0, raw_observation(1), must_go=True)
     _get(stub)
     _connect(stub, checkpoint)  # Ready again: frame 0 of a new session, no frame of the old one
-    _send(stub, 0, _raw(7), must_go=True)
+    _send(stub, 0, raw_observation(7), must_go=True)
     chunk = _get(stub)
     assert [a.get_timestep() for a in chunk] == [0, 1, 2, 3]
     np.testing.assert_allclose(np.stack([a.get_action().numpy() for a in chunk]),
-                               _sync_chunks(checkpoint, [_raw(7)] * 4)[0], atol=1e-5)
+                               _sync_chunks(checkpoint, [raw_observation(7)] * 4)[0], atol=1e-5)
 
 
 def test_a_robot_without_an_input_is_refused_at_set_up(server, tmp_path):
     stub, _ = server
-    ckpt = _checkpoint(tmp_path / "needs_cube" / "pretrained_model", env_names=["cube_x.pos", "cube_y.pos", "cube_z.pos"])
+    ckpt = random_checkpoint(tmp_path / "needs_cube" / "pretrained_model", env_names=["cube_x.pos", "cube_y.pos", "cube_z.pos"])
     with pytest.raises(grpc.RpcError) as err:
         _connect(stub, ckpt)
     assert err.value.code() == grpc.StatusCode.INVALID_ARGUMENT
@@ -249,7 +193,7 @@ def test_a_robot_without_an_input_is_refused_at_set_up(server, tmp_path):
 def test_a_failing_observation_reaches_the_client_and_the_next_one_is_served(server, checkpoint):
     stub, _ = server
     _connect(stub, checkpoint)
-    bad = _raw(0)
+    bad = raw_observation(0)
     bad["elbow.pos"] = float("nan")
     _send(stub, 0, bad, must_go=True)
     with pytest.raises(grpc.RpcError) as err:
@@ -262,5 +206,5 @@ def test_a_failing_observation_reaches_the_client_and_the_next_one_is_served(ser
     _send(stub, 0, bad, must_go=False)
     with pytest.raises(grpc.RpcError, match=r"lacks \['elbow.pos'\]"):
         _get(stub)
-    _send(stub, 0, _raw(0), must_go=False)
+    _send(stub, 0, raw_observation(0), must_go=False)
     assert len(_get(stub)) == 4
