@@ -44,24 +44,32 @@ def dataset_features() -> dict[str, dict]:
     return {"action": vec(ACTION_NAMES), OBS_STATE: vec(STATE_NAMES), OBS_ENV_STATE: vec(ENV_NAMES)}
 
 
-def random_checkpoint(path: Path, env_names: list[str] = ENV_NAMES) -> Path:
-    """A random-weights focal checkpoint (state 7 + environment state 3 -> 7-d action) whose train_config.json
-    names a dataset folder with the feature names."""
+def random_checkpoint(path: Path, env_names: list[str] = ENV_NAMES, policy_type: str = "focal") -> Path:
+    """A random-weights checkpoint (state 7 + environment state 3 -> 7-d action; ``focal`` with deterministic
+    chunks, or ``diffusion_fco`` with 3 DDIM steps) whose train_config.json names a dataset folder holding the
+    feature names."""
     dataset = path.parent / "dataset"
     (dataset / "meta").mkdir(parents=True)
     features = {**dataset_features(), OBS_ENV_STATE: {"dtype": "float32", "shape": [3], "names": env_names}}
     (dataset / "meta" / "info.json").write_text(json.dumps({"features": features}))
-    cfg = FocalConfig(
-        device="cpu", down_dims=(16, 32), use_env_state=True, inference_noise_scale=0.0,
-        input_features={OBS_STATE: PolicyFeature(FeatureType.STATE, (7,)),
-                        OBS_ENV_STATE: PolicyFeature(FeatureType.STATE, (3,))},
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
-    )
+    inputs = {OBS_STATE: PolicyFeature(FeatureType.STATE, (7,)), OBS_ENV_STATE: PolicyFeature(FeatureType.ENV, (3,))}
+    outputs = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
+    stats = {k: {"min": torch.full((d,), -2.0), "max": torch.full((d,), 2.0), "mean": torch.zeros(d),
+                 "std": torch.ones(d)} for k, d in ((OBS_STATE, 7), (OBS_ENV_STATE, 3), ("action", 7))}
     torch.manual_seed(0)
-    policy = FocalPolicy(cfg)
-    stats = {k: {"min": torch.full((d,), -2.0), "max": torch.full((d,), 2.0)}
-             for k, d in ((OBS_STATE, 7), (OBS_ENV_STATE, 3), ("action", 7))}
-    pre, post = make_focal_pre_post_processors(cfg, dataset_stats=stats)
+    if policy_type == "focal":
+        cfg = FocalConfig(device="cpu", down_dims=(16, 32), use_env_state=True, inference_noise_scale=0.0,
+                          input_features=inputs, output_features=outputs)
+        policy, (pre, post) = FocalPolicy(cfg), make_focal_pre_post_processors(cfg, dataset_stats=stats)
+    else:
+        from lerobot_focal.policy.diffusion_fco import DiffusionFcoConfig, DiffusionFcoPolicy
+        from lerobot_focal.policy.diffusion_fco.processor_diffusion_fco import make_diffusion_fco_pre_post_processors
+
+        cfg = DiffusionFcoConfig(device="cpu", input_features=inputs, output_features=outputs, horizon=16,
+                                 n_obs_steps=2, n_action_steps=4, down_dims=(16, 32), kernel_size=3, n_groups=4,
+                                 diffusion_step_embed_dim=16, noise_scheduler_type="DDIM", num_inference_steps=3)
+        policy = DiffusionFcoPolicy(cfg)
+        pre, post = make_diffusion_fco_pre_post_processors(cfg, dataset_stats=stats)
     for part in (policy, pre, post):
         part.save_pretrained(path)
     (path / "train_config.json").write_text(json.dumps({"dataset": {"repo_id": "local/x", "root": str(dataset)}}))

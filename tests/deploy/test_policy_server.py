@@ -7,6 +7,7 @@ save_pretrained and processor factory, deterministic chunks); the robot is the U
 The end-to-end run with LeRobot's robot_client process is tests/deploy/test_async_inference.py.
 """
 
+import json
 import pickle
 import re
 from pathlib import Path
@@ -16,7 +17,6 @@ import pytest
 import torch
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 
-from lerobot_focal.policy import FocalPolicy
 from tests.deploy.helpers import (
     ACTION_NAMES, ENV_NAMES, JOINTS, STATE_NAMES, TCP, dataset_features, random_checkpoint, raw_observation,
     robot_features,
@@ -81,7 +81,7 @@ def _get(stub) -> list:
     return pickle.loads(reply.data)
 
 
-def _sync_chunks(checkpoint: Path, frames: list[dict]) -> list[np.ndarray]:
+def _sync_chunks(checkpoint: Path, frames: list[dict], seed: int | None = None) -> list[np.ndarray]:
     """What `lerobot-rollout` computes: LeRobot's SyncInferenceEngine, one call per control step, on the frames
     LeRobot's build_dataset_frame makes from the same raw observations. Returns the 4 actions after each frame
     at which a chunk is computed (the first frame and every 4th after it)."""
@@ -89,12 +89,19 @@ def _sync_chunks(checkpoint: Path, frames: list[dict]) -> list[np.ndarray]:
     from lerobot.rollout.inference.sync import SyncInferenceEngine
     from lerobot.utils.feature_utils import build_dataset_frame
 
-    policy = FocalPolicy.from_pretrained(checkpoint)
+    from lerobot.policies import get_policy_class
+
+    policy_type = json.loads((checkpoint / "config.json").read_text())["type"]
+    policy = get_policy_class(policy_type).from_pretrained(checkpoint)
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
     features = dataset_features()
     engine = SyncInferenceEngine(policy, pre, post, features, ACTION_NAMES, "move the arm", "cpu", "ur10e")
     engine.reset()
-    actions = [engine.get_action(build_dataset_frame(features, raw, prefix="observation")).numpy() for raw in frames]
+    actions = []
+    for i, raw in enumerate(frames):
+        if seed is not None and i % 4 == 0:
+            torch.manual_seed(seed + i // 4)  # the noise of a diffusion chunk
+        actions.append(engine.get_action(build_dataset_frame(features, raw, prefix="observation")).numpy())
     return [np.stack(actions[i:i + 4]) for i in range(0, len(actions), 4)]
 
 
@@ -208,3 +215,25 @@ def test_a_failing_observation_reaches_the_client_and_the_next_one_is_served(ser
         _get(stub)
     _send(stub, 0, raw_observation(0), must_go=False)
     assert len(_get(stub)) == 4
+
+
+def test_diffusion_fco_is_served_with_its_two_frames(server, tmp_path):
+    """LeRobot's diffusion family (here the plugin's diffusion_fco, 2 observation frames) gets its window too:
+    the chunk equals the synchronous engine's with the same noise."""
+    stub, servicer = server
+    ckpt = random_checkpoint(tmp_path / "dp" / "pretrained_model", policy_type="diffusion_fco")
+    _connect(stub, ckpt, policy_type="diffusion_fco")
+    assert servicer.stacks_history and servicer.n_obs_steps == 2
+    raws = [raw_observation(i) for i in range(5)]
+    torch.manual_seed(10)
+    _send(stub, 0, raws[0], must_go=True)
+    first = _get(stub)
+    _send(stub, 2, raws[3], must_go=False)
+    _send(stub, 3, raws[4], must_go=True)
+    torch.manual_seed(11)
+    second = _get(stub)
+    sync = _sync_chunks(ckpt, raws[:4] + [raws[4]] * 4, seed=10)
+    got = [np.stack([a.get_action().numpy() for a in chunk]) for chunk in (first, second)]
+    for chunk, want in zip(got, sync, strict=True):
+        np.testing.assert_allclose(chunk, want, atol=1e-5)
+    assert np.abs(got[1] - _sync_chunks(ckpt, [raws[4]] * 4, seed=11)[0]).max() > 1e-3  # not one frame copied
