@@ -7,9 +7,9 @@ pymodbus and pygame are imported when an env, robot or teleoperator is actually 
 without the optional extras.
 """
 
-from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
-from lerobot_focal import envs, robots, teleoperators  # noqa: E402,F401  (registration side effects)
+from lerobot_focal import envs, robots, teleoperators  # noqa: F401  (registration side effects)
 from lerobot_focal.datasets.fast_reader import install_from_env as _install_fast_reader
+from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 
 # Opt-in in-memory dataset reader (docs/data_throughput.md): a no-op unless LEROBOT_FOCAL_FAST_READER=1.
 _install_fast_reader()

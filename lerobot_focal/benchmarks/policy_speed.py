@@ -114,11 +114,10 @@ def _obs(batch: int, device: str) -> dict[str, Tensor]:
     }
 
 
-def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
-    down_dims = SIZES[size]
+def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor]) -> tuple[float, float, float]:
+    """(U-Net parameters in millions, bare U-Net forward ms, focal chunk ms); the model is freed on return."""
     focal = build_focal(down_dims, device).eval()
     params = sum(p.numel() for p in focal.model.velocity_net.parameters()) / 1e6
-    obs = _obs(1, device)
     net = focal.ema_model
     cond = net.encode(obs)
     x = torch.randn(1, focal.config.horizon, ACTION_DIM, device=device)
@@ -126,20 +125,28 @@ def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row
     with torch.no_grad():
         ms = time_ms({"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs)},
                      device, repeats)
-    bare, chunk = ms["bare"], ms["chunk"]
+    return params, ms["bare"], ms["chunk"]
+
+
+def _diffusion_ms(down_dims, device: str, sched: str, steps: int, repeats: int, obs: dict[str, Tensor]) -> float:
+    """Median ms of one LeRobot diffusion chunk; the model is freed on return."""
+    dp = build_diffusion(down_dims, device, sched, steps).eval()
+    with torch.no_grad():
+        return time_ms({"dp": lambda: dp.diffusion.generate_actions(obs)}, device, repeats, warmup=1)["dp"]
+
+
+def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
+    down_dims = SIZES[size]
+    obs = _obs(1, device)
+    params, bare, chunk = _focal_ms(down_dims, device, repeats, obs)
     rows = [
         Row(size, params, "bare U-Net forward", bare),
         Row(size, params, "focal predict_action_chunk (1 NFE)", chunk, chunk / bare, "bare"),
     ]
-    del focal
     variants = [("DDIM", 10)] + ([("DDPM", 100)] if ddpm else [])
     for sched, steps in variants:
-        dp = build_diffusion(down_dims, device, sched, steps).eval()
-        with torch.no_grad():
-            ms = time_ms({"dp": lambda: dp.diffusion.generate_actions(obs)}, device,
-                         max(3, repeats // (4 if steps > 10 else 1)), warmup=1)["dp"]
+        ms = _diffusion_ms(down_dims, device, sched, steps, max(3, repeats // (4 if steps > 10 else 1)), obs)
         rows.append(Row(size, params, f"diffusion {sched} {steps}", ms, ms / chunk, "focal"))
-        del dp
     return rows
 
 
@@ -200,7 +207,7 @@ def plot(rows: list[Row], path: Path) -> None:
 
     sizes = sorted({r.size for r in rows}, key=list(SIZES).index)
     fig, axes = plt.subplots(1, len(sizes), figsize=(6 * len(sizes), 3.6), squeeze=False)
-    for ax, size in zip(axes[0], sizes):
+    for ax, size in zip(axes[0], sizes, strict=True):
         sub = [r for r in rows if r.size == size]
         ax.barh([r.what for r in sub], [r.median_ms for r in sub], color=["C0" if "focal" in r.what else "C7" for r in sub])
         ax.set_xscale("log")

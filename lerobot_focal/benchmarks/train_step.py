@@ -38,7 +38,12 @@ from pathlib import Path
 import torch
 
 from lerobot_focal.benchmarks.policy_speed import (
-    ACTION_DIM, ENV_DIM, STATE_DIM, benchmark_features, build_focal, time_ms,
+    ACTION_DIM,
+    ENV_DIM,
+    STATE_DIM,
+    benchmark_features,
+    build_focal,
+    time_ms,
 )
 from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD

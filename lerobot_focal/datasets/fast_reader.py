@@ -39,7 +39,6 @@ import os
 import sys
 from typing import Any
 
-
 from lerobot_focal.datasets.tensor_cache import _cache_is_current, _rows, build_cache
 
 logger = logging.getLogger(__name__)
@@ -67,7 +66,7 @@ def _build_index_mapping(self) -> None:
     self._focal_cache = None
     try:
         self._focal_cache = build_cache(self, _ORIGINALS.get("hf_transform_to_torch"))
-    except Exception as exc:  # never let the optimisation break loading
+    except Exception as exc:  # noqa: BLE001 - never let the optimisation break loading
         logger.warning("fast reader: could not cache the dataset (%s: %s); using the stock reader",
                        type(exc).__name__, exc)
     if self._focal_cache is not None:

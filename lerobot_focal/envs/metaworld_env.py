@@ -23,7 +23,6 @@ import metaworld
 import mujoco
 import numpy as np
 from gymnasium import spaces
-
 from lerobot.envs.metaworld import MetaworldEnv
 
 from lerobot_focal.geometry.pointcloud import PointCloudSpec, WorkspaceBounds

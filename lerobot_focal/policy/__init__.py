@@ -1,9 +1,9 @@
 """The `focal` policy, laid out as LeRobot expects (configuration_*, modeling_*, processor_*)."""
 
+# Imported for their registration: --policy.type=diffusion_ema and --policy.type=diffusion_fco.
+from lerobot_focal.policy import diffusion_ema, diffusion_fco  # noqa: F401
 from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig, FocalConfigError
 from lerobot_focal.policy.modeling_focal import FocalPolicy
 from lerobot_focal.policy.processor_focal import make_focal_pre_post_processors
-from lerobot_focal.policy import diffusion_fco  # noqa: E402,F401  (registers --policy.type=diffusion_fco)
-from lerobot_focal.policy import diffusion_ema  # noqa: E402,F401  (registers --policy.type=diffusion_ema)
 
 __all__ = ["ABLATIONS", "FocalConfig", "FocalConfigError", "FocalPolicy", "make_focal_pre_post_processors"]

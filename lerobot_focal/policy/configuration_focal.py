@@ -35,7 +35,6 @@ from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
-
 # The method switches an ablation may set, with the paper's values. In the dataclass they default to None,
 # meaning "not given": `__post_init__` fills them from the ablation, else from here. So a switch given on the
 # command line is known to be given even when it equals the paper's value, and contradicting an ablation is an

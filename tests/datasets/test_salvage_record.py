@@ -73,7 +73,7 @@ def test_sigkilled_recording_is_salvaged(tmp_path):
             proc.kill()
     claimed = _claimed(root)
     assert claimed == 2
-    with pytest.raises(Exception):  # the damage this command exists for: LeRobot cannot open the folder
+    with pytest.raises(Exception):  # noqa: B017 - the damage this command exists for: LeRobot cannot open the folder
         LeRobotDataset("local/rec", root=root)
     before = {p: p.stat().st_mtime_ns for p in root.rglob("*") if p.is_file()}
 

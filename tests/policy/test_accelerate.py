@@ -26,6 +26,7 @@ import pytest
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
 from lerobot_focal.policy import FocalPolicy
+
 from .accelerate_probe import sha
 
 pytestmark = pytest.mark.slow  # three lerobot-train runs, ~2 minutes on 2 cores

@@ -12,6 +12,7 @@ import pytest
 from lerobot.configs.policies import PreTrainedConfig
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+
 from ..cli import assert_config_error, run_lerobot
 
 REPO = Path(__file__).resolve().parents[2]

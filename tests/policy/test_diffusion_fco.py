@@ -220,7 +220,7 @@ def _write_dataset(root: Path) -> None:
     }
     ds = LeRobotDataset.create(repo_id="local/dp_fco_tiny", fps=10, features=feats, root=root, use_videos=False)
     rng = np.random.default_rng(0)
-    for ep in range(2):
+    for _ in range(2):
         length = 30
         s = np.linspace(0, 1, length + 1, dtype=np.float32)[:, None]
         goal = rng.uniform(-1, 1, (1, ACT)).astype(np.float32)

@@ -133,7 +133,7 @@ def test_online_target_does_not_touch_ema_in_forward_and_ema_target_does():
     for target, expect_ema in (("online", False), ("ema", True)):
         policy = small_policy(consistency_target=target, anchor_sampler="fixed", fixed_r=0.9)
         calls = []
-        policy.ema_model.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+        policy.ema_model.velocity_net.register_forward_hook(lambda *a, calls=calls: calls.append(1))
         policy.forward(_train_batch())
         assert bool(calls) == expect_ema
 

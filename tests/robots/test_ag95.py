@@ -25,7 +25,7 @@ from lerobot_focal.robots.ur10e.ag95 import (  # noqa: E402
     InitState,
     Register,
 )
-from lerobot_focal.robots.ur10e.ag95_sim import AG95Model, AG95ModbusServer  # noqa: E402
+from lerobot_focal.robots.ur10e.ag95_sim import AG95ModbusServer, AG95Model  # noqa: E402
 
 
 @pytest.fixture

@@ -74,7 +74,7 @@ def test_robot_moves_the_twin_through_the_real_client(robot, emulator):
     assert (d[8], d[9], d[10]) == pytest.approx((1 / cfg.control_hz, cfg.servo_lookahead_s, cfg.servo_gain))
 
 
-def test_stop_after_velocity_motion_sends_speedStop_and_the_arm_holds(robot, emulator):
+def test_stop_after_velocity_motion_sends_speedStop_and_the_arm_holds(robot, emulator):  # noqa: N802 (URScript names)
     since = emulator.status()["commands_total"]
     _drive(robot, {"ee_x.vel": 0.1}, 10)
     robot.backend.stop()

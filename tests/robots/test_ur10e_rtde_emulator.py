@@ -71,7 +71,7 @@ def test_control_interface_uploads_its_script_and_reports_it_running(emulator, c
     assert ("is in remote control", "true") in [tuple(x) for x in status["dashboard_log"]]
 
 
-def test_servoL_registers_carry_pose_in_base_frame_metres_and_servo_parameters(emulator, clients):
+def test_servoL_registers_carry_pose_in_base_frame_metres_and_servo_parameters(emulator, clients):  # noqa: N802 (URScript names)
     recv, ctrl = clients
     start = np.array(recv.getActualTCPPose())
     since = emulator.status()["commands_total"]
@@ -92,7 +92,7 @@ def test_servoL_registers_carry_pose_in_base_frame_metres_and_servo_parameters(e
     np.testing.assert_allclose(recv.getActualTCPPose()[:3], target[:3], atol=3e-3)
 
 
-def test_moveL_waits_for_the_motion_and_carries_speed_and_acceleration(emulator, clients):
+def test_moveL_waits_for_the_motion_and_carries_speed_and_acceleration(emulator, clients):  # noqa: N802 (URScript names)
     recv, ctrl = clients
     start = np.array(recv.getActualTCPPose())
     target = start + np.array([0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -109,7 +109,7 @@ def test_moveL_waits_for_the_motion_and_carries_speed_and_acceleration(emulator,
     np.testing.assert_allclose(recv.getActualTCPPose()[:3], target[:3], atol=3e-3)
 
 
-def test_speedL_is_stopped_by_speedStop_not_by_servoStop(emulator, clients):
+def test_speedL_is_stopped_by_speedStop_not_by_servoStop(emulator, clients):  # noqa: N802 (URScript names)
     recv, ctrl = clients
     since = emulator.status()["commands_total"]
     assert ctrl.speedL([0.0, -0.04, 0.0, 0.0, 0.0, 0.0], 0.5, 0.0) is True

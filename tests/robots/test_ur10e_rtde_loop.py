@@ -30,12 +30,12 @@ from .test_ur10e_loop import (  # noqa: E402
     _env,
     _load,
     _record_args,
-    _run,
     _rollout,
+    _run,
     _tail,
     _train,
-    wait_for_episode,
     assert_frames_match_their_timestamps,
+    wait_for_episode,
 )
 from .ur_emulator_support import free_loopback_host  # noqa: E402
 

@@ -13,7 +13,7 @@ pytest.importorskip("mujoco")
 from lerobot.robots.utils import make_robot_from_config  # noqa: E402
 
 from lerobot_focal.config_errors import ConfigError  # noqa: E402
-from lerobot_focal.robots.ur10e import UR10e, UR10eConfig, UnsafeActionError  # noqa: E402
+from lerobot_focal.robots.ur10e import UnsafeActionError, UR10e, UR10eConfig  # noqa: E402
 from lerobot_focal.robots.ur10e.kinematics import HOME_Q, dh_forward  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError, SafetyConfig  # noqa: E402
 

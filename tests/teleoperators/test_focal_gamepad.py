@@ -14,11 +14,11 @@ import pytest
 pytest.importorskip("pygame")
 sys.path.insert(0, str(Path(__file__).parent))
 
-from virtual_joystick import F710, F710Button, VirtualJoystick  # noqa: E402
-
 from lerobot.teleoperators.config import TeleoperatorConfig  # noqa: E402
 from lerobot.teleoperators.utils import TeleopEvents, make_teleoperator_from_config  # noqa: E402
 from lerobot.utils.errors import DeviceNotConnectedError  # noqa: E402
+from virtual_joystick import F710, F710Button, VirtualJoystick  # noqa: E402
+
 from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.teleoperators import FocalGamepad, FocalGamepadConfig  # noqa: E402
 from lerobot_focal.teleoperators.focal_gamepad import (  # noqa: E402

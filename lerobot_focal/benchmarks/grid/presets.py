@@ -16,7 +16,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 
-
 #: Reset seeds of the training demos start here. LeRobot's periodic evaluation inside `lerobot-train` resets its
 #: envs with seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and
 #: a MetaWorld reset seed fixes the object and goal positions: demos collected from seeds 0, 1, … would put the

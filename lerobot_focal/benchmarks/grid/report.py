@@ -243,7 +243,7 @@ def _estimators_table(records: list[dict], tasks: list[str], methods: list[str],
         rows.append(f"| {label[m]} | " + " | ".join(cells) + " |")
     rescored = [r for r in records if "success_rescore_mean" in r]
     if rescored:
-        rows += ["", f"The re-score's mean over all its episodes (same checkpoints): "
+        rows += ["", "The re-score's mean over all its episodes (same checkpoints): "
                  + ", ".join(f"{r['key'].replace('|', ' · ')} {r['success_rescore_mean'] * 100:.1f}"
                              for r in sorted(rescored, key=lambda r: r["key"]))]
     return rows + [""]
@@ -453,7 +453,7 @@ def _plots(out_dir: Path, agg: dict, records: list[dict], tasks: list[str], meth
     for name, key, ylabel in (("learning_curves", "curve", "success (mean over seeds)"),
                               ("compounding_error", "compounding", "compounding error (open loop)")):
         fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
-        for ax, task in zip(axes.flat, tasks):
+        for ax, task in zip(axes.flat, tasks, strict=False):  # the grid may have more cells than tasks
             for i, m in enumerate(methods):
                 if task not in agg[m]:
                     continue

@@ -27,7 +27,6 @@ from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import run_key
-from .seeds import fresh_offset
 from .resume import (
     earlier_segments,
     find_resume_point,
@@ -39,6 +38,7 @@ from .resume import (
     start_segment,
 )
 from .revisit import checkpoint_of
+from .seeds import fresh_offset
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
 #: Environment seeds of the final fresh-episode evaluation: seed k of a run evaluates FINAL_EVAL_SEED + 1000·k

@@ -57,10 +57,9 @@ Choices where the paper is silent or ambiguous (each is a config field):
 from typing import Any
 
 import torch
-from torch import Tensor
-
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 from lerobot.utils.constants import ACTION
+from torch import Tensor
 
 from lerobot_focal.policy.diffusion_fco.configuration_diffusion_fco import DiffusionFcoConfig
 from lerobot_focal.policy.objective import ObjectiveSpec, composite_loss

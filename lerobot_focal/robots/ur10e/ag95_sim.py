@@ -186,7 +186,7 @@ class AG95ModbusServer:
                 )
                 await self._server.serve_forever(background=True)
                 self.port = self._server.transport.sockets[0].getsockname()[1]
-            except BaseException as e:  # reported to the starting thread
+            except BaseException as e:  # noqa: BLE001 - reported to the starting thread
                 failure.append(e)
                 started.set()
                 return

@@ -35,11 +35,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from lerobot.lerobot_types import RobotAction, RobotObservation
 from lerobot.robots.robot import Robot
 from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
+from scipy.spatial.transform import Rotation
 
 from .backend import ArmBackend
 from .camera_info import CameraInfo, depth_to_pointcloud, save_camera_infos

@@ -148,7 +148,7 @@ class FocalGamepad(Teleoperator):
         if self._joystick is not None:
             try:
                 self._joystick.quit()
-            except Exception:  # the device may already be gone; closing is best-effort  # nosec B110
+            except Exception:  # noqa: BLE001  # nosec B110 - the device may already be gone; closing is best-effort
                 pass
         self._joystick = None
         self._lost = False
