@@ -9,6 +9,7 @@
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
     lerobot-focal-bench cloud-content [--tasks ...]     (what a MetaWorld cloud's points fall on: table, arm, objects)
+    lerobot-focal-bench execution-cost [--tasks ...]    (the scripted expert in open-loop chunks, with action noise)
     lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
                                                         (lerobot-rollout on the UR-10e twin: stage latencies)
 """
@@ -46,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "
                                                          "and the task's objects, env crop vs the previous box")
+    sub.add_parser("execution-cost", add_help=False, help="what chunked open-loop execution and action noise cost "
+                                                          "MetaWorld's scripted expert, per development task")
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
     sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
                                                    "and loop rate (see `lerobot-focal-bench rollout --help`)")
@@ -69,6 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.grid.rescore import main as rescore_main
 
         return rescore_main(argv[1:])
+    if argv[:1] == ["execution-cost"]:
+        from lerobot_focal.benchmarks.execution_cost import main as execution_cost_main
+
+        return execution_cost_main(argv[1:])
     if argv[:1] == ["eval-profile"]:
         from lerobot_focal.benchmarks.eval_profile import main as eval_profile_main
 
