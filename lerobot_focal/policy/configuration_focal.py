@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import DiffuserSchedulerConfig
+from lerobot.policies.rtc.configuration_rtc import RTCConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_focal.config_errors import (
@@ -179,6 +180,9 @@ class FocalConfig(PreTrainedConfig):
         ema_update_after_step: EMA updates before this step copy the weights.
         use_ema_for_inference: Act with the EMA weights (True) or the online ones.
         check_finite: Refuse batches with NaN/inf, naming the key.
+        rtc_config: LeRobot's real-time chunking settings; None (training, lerobot-eval, synchronous rollout)
+            leaves inference unchanged. `lerobot-rollout --inference.type=rtc` sets it (`--inference.rtc.*`);
+            then each chunk is the whole macro-trajectory, guided towards the previous chunk (policy/rtc.py).
         optimizer_lr: AdamW learning rate.
         optimizer_betas: AdamW betas.
         optimizer_eps: AdamW epsilon.
@@ -301,6 +305,9 @@ class FocalConfig(PreTrainedConfig):
 
     # Refuse batches with NaN/inf instead of silently training on them (one reduction per key per step).
     check_finite: bool = True
+
+    # Real-time chunking (set by lerobot-rollout --inference.type=rtc; see policy/rtc.py).
+    rtc_config: RTCConfig | None = None
 
     # --- optimisation (paper Table "Hyperparameters setup") ------------------------------------------------
     optimizer_lr: float = 1e-4

@@ -28,6 +28,7 @@ from lerobot_focal.policy.input_checks import check_dataset_stats
 from lerobot_focal.policy.lerobot_compat import lerobot_model_card
 from lerobot_focal.policy.network import VelocityUnet
 from lerobot_focal.policy.objective import consistency_loss
+from lerobot_focal.policy.rtc import FocalRTC, rtc_active
 from lerobot_focal.policy.stats import adapt_dataset_stats
 from lerobot_focal.policy.time_samplers import sample_times
 
@@ -104,6 +105,8 @@ class FocalPolicy(PreTrainedPolicy):
         # Per queued observation frame: {camera key: (B, F) RGB features} once encoded, else None (see select_action).
         self._frame_features: deque = deque()
         self._rank_rng_decorrelated = False
+        self.rtc_processor: FocalRTC | None = None
+        self.init_rtc_processor()
         self.reset()
 
     # --- LeRobot interface ---------------------------------------------------------------------------------
@@ -145,6 +148,14 @@ class FocalPolicy(PreTrainedPolicy):
             text = MODEL_CARD_INTRO + "\n\n" + text
         card.text = text
         return card
+
+    def supports_rtc(self) -> bool:
+        """focal is a flow policy: `lerobot-rollout --inference.type=rtc` guides its chunks (see policy/rtc.py)."""
+        return True
+
+    def init_rtc_processor(self) -> None:
+        """(Re)build the RTC guide from ``config.rtc_config`` (LeRobot's rollout sets it, then calls this)."""
+        self.rtc_processor = FocalRTC(self.config.rtc_config) if self.config.rtc_config is not None else None
 
     def get_optim_params(self) -> dict:
         return self.model.parameters()
@@ -203,16 +214,27 @@ class FocalPolicy(PreTrainedPolicy):
         return loss, {k: v.item() for k, v in logs.items()}
 
     @torch.no_grad()
-    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None,
+                             inference_delay: int | None = None, prev_chunk_left_over: Tensor | None = None,
+                             execution_horizon: int | None = None) -> Tensor:
         """(B, H, d) actions to execute next. Uses the observation queues when `select_action` filled them,
-        otherwise the batch itself (offline use)."""
+        otherwise the batch itself (offline use).
+
+        With RTC on (``config.rtc_config``, set by ``lerobot-rollout --inference.type=rtc``) it returns the whole
+        macro-trajectory (B, L, d), guided towards ``prev_chunk_left_over`` (the previous chunk's unexecuted
+        normalised actions) over its first ``inference_delay`` … ``execution_horizon`` steps (policy/rtc.py)."""
         if any(len(self._queues[k]) > 0 for k in self._obs_keys):
             obs = {k: torch.stack(list(self._queues[k]), dim=1) for k in self._obs_keys}
             image_features = self._queued_image_features() if self._image_keys else None
         else:
             obs = self._observations(batch, training=False)
             image_features = None
-        return self.sample_macro_trajectory(obs, noise, image_features)[:, : self.config.n_action_steps]
+        if not rtc_active(self.config):
+            return self.sample_macro_trajectory(obs, noise, image_features)[:, : self.config.n_action_steps]
+        if self.rtc_processor is None or self.rtc_processor.config is not self.config.rtc_config:
+            self.init_rtc_processor()
+        rtc = (prev_chunk_left_over, inference_delay, execution_horizon)
+        return self.sample_macro_trajectory(obs, noise, image_features, rtc=rtc)
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
@@ -231,7 +253,7 @@ class FocalPolicy(PreTrainedPolicy):
         if self._image_keys:
             self._align_frame_features()
         if len(self._queues[ACTION]) == 0:
-            actions = self.predict_action_chunk(batch, noise=noise)
+            actions = self.predict_action_chunk(batch, noise=noise)[:, : self.config.n_action_steps]
             self._queues[ACTION].extend(actions.transpose(0, 1))
         action = self._queues[ACTION].popleft()
         # Steps left before the next chunk step; frames within n_obs_steps - 1 of it are in its window.
@@ -287,10 +309,12 @@ class FocalPolicy(PreTrainedPolicy):
 
     # --- sampling ------------------------------------------------------------------------------------------
     def sample_macro_trajectory(
-        self, obs: dict[str, Tensor], noise: Tensor | None = None, image_features: dict[str, Tensor] | None = None
+        self, obs: dict[str, Tensor], noise: Tensor | None = None, image_features: dict[str, Tensor] | None = None,
+        rtc: tuple | None = None,
     ) -> Tensor:
         """Integrate the learned flow from noise (τ = ε) to data (τ = 1); NFE = num_inference_steps. Noise
-        passed in is used as given; drawn noise is scaled by ``inference_noise_scale``."""
+        passed in is used as given; drawn noise is scaled by ``inference_noise_scale``. ``rtc``: (leftover,
+        delay, horizon) of RTC's guided steps (policy/rtc.py)."""
         net = self._inference_net()
         cond = net.encode(obs, image_features)
         b = cond.shape[0]
@@ -304,9 +328,15 @@ class FocalPolicy(PreTrainedPolicy):
                 raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")
             x = noise.to(device=cond.device, dtype=cond.dtype)
         times = torch.linspace(self.config.time_eps, 1.0, self.config.num_inference_steps + 1, device=x.device)
-        for i in range(self.config.num_inference_steps):
-            t = times[i].expand(b)
-            x = x + (times[i + 1] - times[i]) * net.velocity(x, t, cond)
+        guided = None
+        if rtc is not None:  # None too for the first chunk (nothing to continue)
+            guided = self.rtc_processor.sample(x, times, lambda m, i: net.velocity(m, times[i].expand(b), cond), *rtc)
+        if guided is not None:
+            x = guided
+        else:
+            for i in range(self.config.num_inference_steps):
+                t = times[i].expand(b)
+                x = x + (times[i + 1] - times[i]) * net.velocity(x, t, cond)
         if self.config.check_finite and not bool(torch.isfinite(x).all()):
             raise FloatingPointError(self._nonfinite_output_message(net, x))
         return x
