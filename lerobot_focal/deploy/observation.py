@@ -127,9 +127,7 @@ class ObservationPlan:
         """The dataset-style frame of one raw observation (what ``build_dataset_frame`` gives ``lerobot-rollout``)."""
         missing = [k for k in self.raw_keys if k not in raw]
         if missing:
-            raise ObservationMismatchError(
-                f"The robot's observation lacks {missing}, which the policy reads (it has {sorted(raw)})."
-            )
+            raise ObservationMismatchError(f"The robot's observation lacks {missing}, which the policy reads.")
         out: dict[str, np.ndarray] = {k: np.array([raw[n] for n in names], dtype=np.float32)
                                       for k, names in self.vectors.items()}
         out.update({k: np.asarray(raw[cam]) for k, cam in self.cameras.items()})

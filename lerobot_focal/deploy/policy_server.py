@@ -76,6 +76,10 @@ def served_policy_types() -> list[str]:
     return list(dict.fromkeys([*SUPPORTED_POLICIES, *sorted(extra)]))
 
 
+class PolicySetupError(ValueError):
+    """The client asked for something this server does not serve."""
+
+
 @dataclass
 class FocalPolicyServerConfig(PolicyServerConfig):
     dataset_root: str | None = field(
@@ -123,17 +127,18 @@ class FocalPolicyServer(PolicyServer):
         try:
             self._load_policy(pickle.loads(request.data), context.peer())  # nosec
         except Exception as e:  # noqa: BLE001  (every set-up failure goes back to the client)
-            self.logger.error("Policy set-up failed: %s", e, exc_info=not isinstance(e, ObservationMismatchError))
+            expected = isinstance(e, (ObservationMismatchError, PolicySetupError))
+            self.logger.error("Policy set-up failed: %s", e, exc_info=not expected)  # a traceback if unforeseen
             message = f"lerobot-focal-policy-server could not set up the policy: {type(e).__name__}: {e}"
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, message)
         return services_pb2.Empty()
 
     def _load_policy(self, specs: RemotePolicyConfig, client: str) -> None:
         if not isinstance(specs, RemotePolicyConfig):
-            raise TypeError(f"Policy specs must be a RemotePolicyConfig. Got {type(specs)}")
+            raise PolicySetupError(f"Policy specs must be a RemotePolicyConfig. Got {type(specs)}")
         served = served_policy_types()
         if specs.policy_type not in served:
-            raise ValueError(f"Policy type {specs.policy_type!r} is not served. Served types: {served}")
+            raise PolicySetupError(f"Policy type {specs.policy_type!r} is not served. Served types: {served}")
         self.logger.info(
             f"Receiving policy instructions from {client} | Policy type: {specs.policy_type} | "
             f"Pretrained name or path: {specs.pretrained_name_or_path} | "

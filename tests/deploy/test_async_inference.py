@@ -66,6 +66,17 @@ def _wait_for(log: Path, proc: subprocess.Popen, pattern: str, timeout_s: float,
         time.sleep(0.2)
 
 
+def _interrupt(proc: subprocess.Popen, timeout_s: float) -> None:
+    """Ctrl-C, as a user stops the client and the server; killed if it has not exited within the timeout."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -110,11 +121,7 @@ def server(trained):
         _wait_for(log, proc, r"PolicyServer started on 127\.0\.0\.1", timeout_s=180)
         yield port, log, dump, proc
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        _interrupt(proc, timeout_s=20)
 
 
 def _client(tmp: Path, port: int, model: Path, log: Path, **env: str) -> subprocess.Popen:
@@ -155,11 +162,8 @@ def test_lerobots_robot_client_drives_the_twin_through_the_server(trained, serve
     proc = _client(tmp, port, model, log, FOCAL_ASYNC_DUMP_CLIENT=str(client_dump))
     try:
         _wait_for(server_log, proc, r"Chunk of 4 actions in", timeout_s=180, count=CHUNKS)
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        _interrupt(proc, timeout_s=30)
     text = log.read_text(errors="replace")
     m = re.search(r"UR10e disconnected after (\d+) commands", text)
     assert m and int(m.group(1)) >= 3 * CHUNKS, _tail(log)
@@ -234,8 +238,7 @@ def test_a_checkpoint_needing_an_input_the_robot_does_not_send_fails_the_client_
     try:
         proc.wait(timeout=180)  # LeRobot's client gives up by itself when the set-up is refused
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        _interrupt(proc, timeout_s=10)
     text = log.read_text(errors="replace")
     assert "Failed to connect to policy server" in text and "StatusCode.INVALID_ARGUMENT" in text, _tail(log)
     assert "'observation.environment_state': the robot sends no ['cube_x.pos', 'cube_y.pos', 'cube_z.pos']" in text
