@@ -95,3 +95,29 @@ def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, 
         assert cfg["chunk_size"] == ACT_CHUNK and cfg["dim_model"] == 128 and cfg["optimizer_lr"] == 1e-5
     else:
         assert cfg["use_ema"] is True and cfg["num_inference_steps"] == 10
+
+
+def test_report_says_what_each_method_was_given(tmp_path):
+    from lerobot_focal.benchmarks.grid.report import write_report
+    from tests.benchmarks.test_grid_estimators import _record
+
+    preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),))
+    methods = ["focal", "diffusion_ema", "act", "wo_fco_las"]
+    grid = {"preset": json.loads(json.dumps(preset.to_dict())), "overrides": {}, "tasks": ["disassemble"],
+            "methods": methods, "seeds": [0]}
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    for m in methods:
+        record = _record("disassemble", m, 0, 0.5, 0.4, "fresh")
+        record["nfe"] = 10.0 if m == "diffusion_ema" else 1.0
+        ResultsFile(tmp_path / "results.jsonl").append(record)
+    report = write_report(tmp_path).read_text()
+    assert "## What each method was given" in report and "8000 steps at batch 64" in report
+    for row in (
+        "| FocalPolicy | 0.001 | cosine, 100 warm-up | EMA weights; consistency target EMA | 12 / 4 | "
+        "9-d state + 39-d object poses | 1 |",
+        "| DP with EMA (DDIM 10) | 0.0003 | cosine, 100 warm-up | EMA weights | 16 / 8 | "
+        "9-d state + 39-d object poses | 10 |",
+        "| ACT | 1e-05 | constant | online weights | 50 / 50 | 9-d state + 39-d object poses | 1 |",
+        "| w/o FCO & LAS | 0.001 | cosine, 100 warm-up | EMA weights; consistency target online | 12 / 4 |",
+    ):
+        assert row in report, row

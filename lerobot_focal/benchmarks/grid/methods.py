@@ -218,3 +218,48 @@ def resolve_method_phases(spec: str) -> list[list[Method]]:
 
 def resolve_methods(spec: str) -> list[Method]:
     return [m for phase in resolve_method_phases(spec) for m in phase]
+
+
+def _flag(args: list[str], name: str) -> str | None:
+    values = [a.split("=", 1)[1] for a in args if a.startswith(f"--policy.{name}=")]
+    return values[-1] if values else None
+
+
+def given(name: str, preset: dict) -> dict[str, str]:
+    """What `name` is given in a grid whose preset is `preset` (as grid.json stores it): learning rate and schedule,
+    which weights act and which target it trains against, chunk (predicted / executed steps), observations. Read
+    off the very `lerobot-train` arguments the grid passes, with each policy type's defaults where it passes none."""
+    from dataclasses import fields
+
+    from .presets import GridPreset
+
+    def as_tuple(v):
+        return tuple(as_tuple(x) for x in v) if isinstance(v, list) else v
+
+    p = GridPreset(**{f.name: as_tuple(preset[f.name]) for f in fields(GridPreset) if f.name in preset})
+    method = METHODS[name]
+    args = method.train_args(p)
+    lr = float(_flag(args, "optimizer_lr"))
+    if method.policy_type in _TRANSFORMERS:
+        schedule = "constant"
+        chunk = f"{_flag(args, 'chunk_size')} / {_flag(args, 'n_action_steps')}"
+        acts = "online weights"
+    elif method.policy_type == "focal":
+        from lerobot_focal.policy.configuration_focal import FocalConfig
+
+        default = {f.name: f.default for f in fields(FocalConfig)}
+        h = int(_flag(args, "chunk_size") or default["chunk_size"])
+        n = int(_flag(args, "n_chunks") or default["n_chunks"])
+        schedule = f"cosine, {p.warmup_steps} warm-up"
+        chunk = f"{h * n} / {h}"
+        target = "online" if ONLINE in args else "EMA"
+        acts = f"EMA weights; consistency target {target}"
+    else:
+        schedule = f"cosine, {p.warmup_steps} warm-up"
+        chunk = f"{_flag(args, 'horizon')} / {_flag(args, 'n_action_steps')}"
+        acts = "EMA weights" if method.policy_type == "diffusion_ema" else "online weights (no EMA)"
+    obs = method.obs_type_for(p)
+    inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
+    if p.env_state and (obs != "pointcloud" or method.policy_type != "focal"):
+        inputs += " + 39-d object poses"
+    return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs}

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...figures import save_png
 from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
-from .methods import METHODS
+from .methods import METHODS, given
 from .metrics import mean_curve, mean_std, paired_difference
 from .presets import capped_seeds
 from .results import ResultsFile
@@ -389,6 +389,7 @@ def write_report(out_dir: Path) -> Path:
     md += table("TS score (↓)", "ts_score", 1, 4,
                 "TS score = |TS_expert − TS_policy|, TS = mean ‖a_{t+1} − 2a_t + a_{t−1}‖ (CoLA's exact TS formula is not "
                 "available to us; this is our stand-in of the same kind).")
+    md += _given_table(methods, label, preset, agg)
     md += ["## Cost per run", "", "| Method | NFE per chunk | latency per chunk (ms, batch 1) | update (s/step) | "
            "wall time per run (min) |", "|---|---|---|---|---|"]
     for m in methods:
@@ -407,6 +408,23 @@ def write_report(out_dir: Path) -> Path:
     (out_dir / "summary.json").write_text(json.dumps(_nan_to_none(summary), indent=1))
     _plots(out_dir, agg, records, tasks, methods, label, preset)
     return out_dir / "report.md"
+
+
+def _given_table(methods: list[str], label: dict, preset: dict, agg: dict) -> list[str]:
+    """One row per method: what it was given (the training arguments the grid passed) and its measured NFE."""
+    rows = ["## What each method was given", "",
+            f"Every method: {preset['steps']} steps at batch {preset['batch_size']}, the same demos and evaluations. "
+            "NFE: network evaluations per chunk, measured on the final checkpoints.", "",
+            "| Method | lr | schedule | acts with | chunk (predicted / executed) | inputs | NFE per chunk |",
+            "|---|---|---|---|---|---|---|"]
+    for m in methods:
+        if m not in METHODS:
+            continue
+        g = given(m, preset)
+        nfe = mean_std([agg[m][t]["nfe"][0] for t in agg[m]])[0]
+        rows.append(f"| {label[m]} | {g['lr']} | {g['schedule']} | {g['acts']} | {g['chunk']} | {g['inputs']} | "
+                    f"{nfe:.0f} |")
+    return rows + [""]
 
 
 #: Analyses of a finished grid's runs written beside its report: (file pattern, tool module, what it asks).
