@@ -89,7 +89,7 @@ def training_dataset_features(pretrained: str, dataset_root: str | None = None) 
     if dataset_root:
         info = Path(dataset_root) / "meta" / "info.json"
         if not info.is_file():
-            raise FileNotFoundError(f"--dataset_root={dataset_root}: no meta/info.json there (a LeRobotDataset folder).")
+            raise FileNotFoundError(f"--dataset_root={dataset_root}: no meta/info.json there (a LeRobotDataset).")
         roots.append(Path(dataset_root))
     else:
         train_config = Path(pretrained) / "train_config.json"

@@ -32,7 +32,8 @@ def robot_features() -> dict[str, dict]:
 def raw_observation(step: int) -> dict:
     """One raw UR-10e observation as robot.get_observation() returns it (floats, RGB, uint16 depth)."""
     rng = np.random.default_rng(step)
-    obs = {k: float(v) for k, v in zip([*JOINTS, *TCP, "gripper.pos"], 0.1 * step + rng.uniform(-1, 1, 13))}
+    values = 0.1 * step + rng.uniform(-1, 1, 13)
+    obs = {k: float(v) for k, v in zip([*JOINTS, *TCP, "gripper.pos"], values, strict=True)}
     obs["front"] = rng.integers(0, 255, (*CAMERA, 3), dtype=np.uint8)
     obs["front_depth"] = rng.integers(500, 2000, (*CAMERA, 1), dtype=np.uint16)
     obs["task"] = "move the arm"

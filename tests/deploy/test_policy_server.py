@@ -18,7 +18,14 @@ import torch
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 
 from tests.deploy.helpers import (
-    ACTION_NAMES, ENV_NAMES, JOINTS, STATE_NAMES, TCP, dataset_features, random_checkpoint, raw_observation,
+    ACTION_NAMES,
+    ENV_NAMES,
+    JOINTS,
+    STATE_NAMES,
+    TCP,
+    dataset_features,
+    random_checkpoint,
+    raw_observation,
     robot_features,
 )
 
@@ -85,11 +92,9 @@ def _sync_chunks(checkpoint: Path, frames: list[dict], seed: int | None = None) 
     """What `lerobot-rollout` computes: LeRobot's SyncInferenceEngine, one call per control step, on the frames
     LeRobot's build_dataset_frame makes from the same raw observations. Returns the 4 actions after each frame
     at which a chunk is computed (the first frame and every 4th after it)."""
-    from lerobot.policies import make_pre_post_processors
+    from lerobot.policies import get_policy_class, make_pre_post_processors
     from lerobot.rollout.inference.sync import SyncInferenceEngine
     from lerobot.utils.feature_utils import build_dataset_frame
-
-    from lerobot.policies import get_policy_class
 
     policy_type = json.loads((checkpoint / "config.json").read_text())["type"]
     policy = get_policy_class(policy_type).from_pretrained(checkpoint)
@@ -188,11 +193,12 @@ def test_a_new_client_starts_a_new_history(server, checkpoint):
 
 def test_a_robot_without_an_input_is_refused_at_set_up(server, tmp_path):
     stub, _ = server
-    ckpt = random_checkpoint(tmp_path / "needs_cube" / "pretrained_model", env_names=["cube_x.pos", "cube_y.pos", "cube_z.pos"])
+    cube = ["cube_x.pos", "cube_y.pos", "cube_z.pos"]
+    ckpt = random_checkpoint(tmp_path / "needs_cube" / "pretrained_model", env_names=cube)
     with pytest.raises(grpc.RpcError) as err:
         _connect(stub, ckpt)
     assert err.value.code() == grpc.StatusCode.INVALID_ARGUMENT
-    assert "'observation.environment_state': the robot sends no ['cube_x.pos', 'cube_y.pos', 'cube_z.pos']" in err.value.details()
+    assert f"'observation.environment_state': the robot sends no {cube}" in err.value.details()
     with pytest.raises(grpc.RpcError, match="Policy type 'nope' is not served"):
         _connect(stub, ckpt, policy_type="nope")
 
