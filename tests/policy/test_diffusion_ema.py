@@ -29,26 +29,17 @@ from safetensors.torch import load_file
 
 from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.policy.diffusion_ema import DiffusionEmaConfig, DiffusionEmaPolicy
-from tests.policy.test_diffusion_fco import ACT, ENV, HORIZON, N_ACT, STATE, _batch, _write_dataset
+from tests.policy.test_diffusion_fco import ACT, HORIZON, N_ACT, _batch, _write_dataset
+from tests.policy.test_diffusion_fco import _config as _fco_config
 
 BIN = Path(sys.executable).parent
-_SMALL = dict(down_dims=(16, 32), kernel_size=3, n_groups=4, diffusion_step_embed_dim=16)
 
 
 def _config(**overrides) -> DiffusionEmaConfig:
-    from lerobot.configs.types import FeatureType, PolicyFeature
-
-    kwargs = dict(
-        device="cpu",
-        input_features={
-            "observation.state": PolicyFeature(FeatureType.STATE, (STATE,)),
-            "observation.environment_state": PolicyFeature(FeatureType.ENV, (ENV,)),
-        },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (ACT,))},
-        horizon=HORIZON, n_obs_steps=2, n_action_steps=N_ACT, num_inference_steps=3, **_SMALL,
-    )
-    kwargs.update(overrides)
-    return DiffusionEmaConfig(**kwargs)
+    """The small diffusion config of the diffusion_fco tests (same features, horizon, U-Net), as diffusion_ema."""
+    base = _fco_config()
+    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(DiffusionConfig) if f.init}
+    return DiffusionEmaConfig(**{**fields, "num_inference_steps": 3, "noise_scheduler_type": "DDIM", **overrides})
 
 
 def test_training_is_lerobot_diffusion_and_the_optimizer_sees_only_the_online_network():
