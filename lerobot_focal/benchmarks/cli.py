@@ -12,6 +12,8 @@
     lerobot-focal-bench execution-cost [--tasks ...]    (the scripted expert in open-loop chunks, with action noise)
     lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
                                                         (lerobot-rollout on the UR-10e twin: stage latencies)
+    lerobot-focal-bench inference-modes [--delays 0 1 2 3] (focal with / without RTC at simulated delays:
+                                                        MetaWorld and the twin)
 """
 
 from __future__ import annotations
@@ -52,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
     sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
                                                    "and loop rate (see `lerobot-focal-bench rollout --help`)")
+    sub.add_parser("inference-modes", add_help=False, help="focal with and without real-time chunking (RTC) at "
+                                                           "simulated inference delays, on MetaWorld and the twin")
     if argv is None:
         import sys
 
@@ -80,6 +84,10 @@ def main(argv: list[str] | None = None) -> int:
         from lerobot_focal.benchmarks.eval_profile import main as eval_profile_main
 
         return eval_profile_main(argv[1:])
+    if argv[:1] == ["inference-modes"]:
+        from lerobot_focal.benchmarks.inference_modes import main as inference_modes_main
+
+        return inference_modes_main(argv[1:])
     if argv[:1] == ["rollout"]:
         from lerobot_focal.benchmarks.rollout_latency import main as rollout_main
 

@@ -86,18 +86,13 @@ def robot_config(width: int, height: int, fps: int, calibration_dir: Path):
                        calibration_dir=calibration_dir, id="bench")
 
 
-def record_dataset(root: Path, width: int, height: int, fps: int, episodes: int, seconds: float,
-                   calibration_dir: Path) -> Path:
-    """Scripted TCP circles on the twin, written as `lerobot-record` writes a dataset (video, depth included)."""
+def create_robot_dataset(robot, root: Path, fps: int, repo_id: str):
+    """An empty LeRobotDataset with the robot's features, built as `lerobot-record` builds them (video, depth
+    included), and the observation processor that goes with it."""
     from lerobot.datasets import LeRobotDataset, aggregate_pipeline_dataset_features, create_initial_features
     from lerobot.processor import make_default_processors
-    from lerobot.utils.constants import ACTION, OBS_STR
-    from lerobot.utils.feature_utils import build_dataset_frame, combine_feature_dicts
-    from lerobot.utils.robot_utils import precise_sleep
+    from lerobot.utils.feature_utils import combine_feature_dicts
 
-    from lerobot_focal.robots.ur10e.ur10e import UR10e
-
-    robot = UR10e(robot_config(width, height, fps, calibration_dir))
     teleop_proc, _, obs_proc = make_default_processors()
     features = combine_feature_dicts(
         aggregate_pipeline_dataset_features(pipeline=teleop_proc,
@@ -108,8 +103,22 @@ def record_dataset(root: Path, width: int, height: int, fps: int, episodes: int,
                                                 observation=robot.observation_features),
                                             use_videos=True),
     )
-    dataset = LeRobotDataset.create("local/ur10e_rollout_bench", fps, root=root, robot_type=robot.name,
-                                    features=features, use_videos=True)
+    dataset = LeRobotDataset.create(repo_id, fps, root=root, robot_type=robot.name, features=features,
+                                    use_videos=True)
+    return dataset, obs_proc
+
+
+def record_dataset(root: Path, width: int, height: int, fps: int, episodes: int, seconds: float,
+                   calibration_dir: Path) -> Path:
+    """Scripted TCP circles on the twin, written as `lerobot-record` writes a dataset (video, depth included)."""
+    from lerobot.utils.constants import ACTION, OBS_STR
+    from lerobot.utils.feature_utils import build_dataset_frame
+    from lerobot.utils.robot_utils import precise_sleep
+
+    from lerobot_focal.robots.ur10e.ur10e import UR10e
+
+    robot = UR10e(robot_config(width, height, fps, calibration_dir))
+    dataset, obs_proc = create_robot_dataset(robot, root, fps, "local/ur10e_rollout_bench")
     robot.connect()
     try:
         for episode in range(episodes):
