@@ -1,49 +1,19 @@
 """Real-time chunking (RTC) for focal: LeRobot's guided inpainting of the committed prefix, in focal's time.
 
-``lerobot-rollout --inference.type=rtc`` computes the next chunk in a background thread while the robot executes
-the current one, and asks the policy for a chunk whose first actions continue the previous chunk's unexecuted
-ones (``prev_chunk_left_over``): the first ``inference_delay`` actions are executed before the new chunk can
-arrive (weight 1), the following ones up to ``execution_horizon`` are blended with weights falling to 0
-(``--inference.rtc.prefix_attention_schedule``, LeRobot's own schedules). LeRobot's implementation
-(``lerobot.policies.rtc.RTCProcessor``) wraps the velocity of each Euler step in LeRobot's flow convention; this
-module is the same guidance written in focal's.
+``lerobot-rollout --inference.type=rtc`` computes the next chunk while the arm executes the current one and
+passes the previous chunk's unexecuted actions (``prev_chunk_left_over``, Y) and the steps the computation takes
+(``inference_delay``). The prefix weights W (1 over the delay, then falling to 0 at ``execution_horizon``) are
+LeRobot's own schedules (``RTCProcessor.get_prefix_weights``). LeRobot's step is written for t: 1 (noise) -> 0;
+focal's τ = 1 − t goes from ε (noise) to 1, with v_focal = −v_LeRobot. In focal's terms a guided Euler step is
 
-Time convention (LeRobot / Black et al.'s RTC paper / focal):
+    M̂_1 = M_τ + (1 − τ)·v,   M_{τ+Δτ} = M_τ + Δτ·v + min(1, Δτ·w(τ))·W⊙(Y − M̂_1),
+    w(τ) = min(β, ((1 − τ)² + τ²) / (τ(1 − τ))),
 
-====================  =======================================  ============================================
-                      LeRobot (pi0, pi05, smolvla)             focal (and the RTC paper)
-====================  =======================================  ============================================
-time                  t: 1 = noise -> 0 = data                 τ: ε = noise -> 1 = data;   τ = 1 − t
-sample                x_t = t·noise + (1 − t)·data             M_τ = (1 − τ)·M_0 + τ·M_1
-velocity              v = dx/dt ≈ noise − data                 v = dM/dτ ≈ M_1 − M_0;      v_focal = −v_lerobot
-Euler step            x ← x + dt·v, dt = −1/n                  M ← M + Δτ·v, Δτ = (1 − ε)/n
-data estimate         x̂ = x_t − t·v                            M̂_1 = M_τ + (1 − τ)·v       (the same point)
-guided velocity       v − w·W⊙(Y − x̂)                          v + w·W⊙(Y − M̂_1)
-weight w              min(β, ((1−τ)² + τ²) / (τ(1−τ))) with LeRobot's τ = 1 − t: the same function of focal's τ
-====================  =======================================  ============================================
-
-Y is the previous chunk's leftover (zero past its end), W the prefix weights, β ``max_guidance_weight``. As in
-LeRobot's ``RTCProcessor`` the Jacobian ∂M̂_1/∂M_τ is the identity: LeRobot marks ``x_t`` as requiring grad only
-after the velocity is computed, so its vector-Jacobian product is the weighted error itself. No backward pass
-through the U-Net, so a guided chunk still costs one network evaluation.
-
-One network evaluation per chunk. focal's single consistency step goes from τ = ε to 1 (Δτ = 1 − ε). The
-guidance is applied to that step as to any Euler step, with one addition: the fraction of the prefix error a step
-removes, Δτ·w, is capped at 1 (a step never moves past the committed actions). At LeRobot's defaults (β = 10,
-10 Euler steps) Δτ·w never exceeds 1, so the cap changes nothing there; with one step, w(ε) is clipped to β and
-Δτ·β ≈ 9.9 would overshoot the prefix ninefold. With the cap the one-step guided chunk is
-
-    M̂ + g·W⊙(Y − M̂),   g = min(1, (1 − ε)·min(β, w(ε))),
-
-i.e. at β ≥ 1/(1 − ε) (LeRobot's default 10 included) the soft-masked blend (1 − W)⊙M̂ + W⊙Y: the delay prefix
-is the committed actions exactly, the next actions move from the previous chunk's towards the new one's, the
-rest is the network's chunk unchanged. β below 1/(1 − ε) blends only that fraction. With
-``num_inference_steps > 1`` the guidance acts on every Euler step (each with its own w(τ) and the same cap), as
-in LeRobot's loop.
-
-Engine facts focal handles here: LeRobot's engine pads the leftover with zero rows to ``execution_horizon``
-(``_normalize_prev_actions_length``); trailing rows that are exactly zero in every dimension are that padding
-and get weight 0 (guiding towards them would pull the chunk to the middle of the normalised action range).
+LeRobot's guidance (identity Jacobian, as in its ``RTCProcessor``: no backward pass) with the fraction of the
+error a step removes capped at 1. With focal's single consistency step (τ = ε -> 1) and β ≥ 1/(1 − ε) that is
+the soft-masked blend (1 − W)⊙M̂ + W⊙Y; with ``num_inference_steps > 1`` it acts on every Euler step. The
+mapping table, the choice and the engine's quirks (zero padding of the leftover, one observation per chunk,
+delay ≥ 1): docs/rtc.md.
 """
 
 from __future__ import annotations
