@@ -10,6 +10,7 @@
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
     lerobot-focal-bench cloud-content [--tasks ...]     (what a MetaWorld cloud's points fall on: table, arm, objects)
     lerobot-focal-bench execution-cost [--tasks ...]    (the scripted expert in open-loop chunks, with action noise)
+    lerobot-focal-bench amp-compile [--checkpoint CKPT] (latency per chunk: --policy.use_amp, --use_torch_compile)
     lerobot-focal-bench rollout [--width 848 --height 480 --fps 30 --duration 120]
                                                         (lerobot-rollout on the UR-10e twin: stage latencies)
     lerobot-focal-bench inference-modes [--delays 0 1 2 3] (focal with / without RTC at simulated delays:
@@ -21,6 +22,23 @@ from __future__ import annotations
 from pathlib import Path
 
 from lerobot_focal.console import doc_parser
+
+
+# Subcommands that parse their own arguments: command -> module with main(argv).
+_DELEGATED = {
+    "data": "lerobot_focal.benchmarks.data_throughput",
+    "grid": "lerobot_focal.benchmarks.grid.driver",
+    "report": "lerobot_focal.benchmarks.grid.report",
+    "rescore": "lerobot_focal.benchmarks.grid.rescore",
+    "execution-cost": "lerobot_focal.benchmarks.execution_cost",
+    "eval-profile": "lerobot_focal.benchmarks.eval_profile",
+    "rollout": "lerobot_focal.benchmarks.rollout_latency",
+    "cloud-content": "lerobot_focal.benchmarks.cloud_content",
+    "allocator": "lerobot_focal.benchmarks.allocator",
+    "train-step": "lerobot_focal.benchmarks.train_step",
+    "amp-compile": "lerobot_focal.benchmarks.amp_compile",
+    "inference-modes": "lerobot_focal.benchmarks.inference_modes",
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("execution-cost", add_help=False, help="what chunked open-loop execution and action noise cost "
                                                           "MetaWorld's scripted expert, per development task")
     sub.add_parser("eval-profile", add_help=False, help="where one lerobot-eval's time goes (cProfile, grouped)")
+    sub.add_parser("amp-compile", add_help=False, help="latency per chunk with LeRobot's AMP (autocast) and "
+                                                       "lerobot-rollout's torch.compile switch, each and both")
     sub.add_parser("rollout", add_help=False, help="lerobot-rollout on the UR-10e twin at 848x480: per-stage latency "
                                                    "and loop rate (see `lerobot-focal-bench rollout --help`)")
     sub.add_parser("inference-modes", add_help=False, help="focal with and without real-time chunking (RTC) at "
@@ -60,50 +80,10 @@ def main(argv: list[str] | None = None) -> int:
         import sys
 
         argv = sys.argv[1:]
-    if argv[:1] == ["data"]:
-        from lerobot_focal.benchmarks.data_throughput import main as data_main
+    if argv[:1] and argv[0] in _DELEGATED:  # commands with their own parser and --help
+        import importlib
 
-        return data_main(argv[1:])
-    if argv[:1] == ["grid"]:
-        from lerobot_focal.benchmarks.grid.driver import main as grid_main
-
-        return grid_main(argv[1:])
-    if argv[:1] == ["report"]:
-        from lerobot_focal.benchmarks.grid.report import main as report_main
-
-        return report_main(argv[1:])
-    if argv[:1] == ["rescore"]:
-        from lerobot_focal.benchmarks.grid.rescore import main as rescore_main
-
-        return rescore_main(argv[1:])
-    if argv[:1] == ["execution-cost"]:
-        from lerobot_focal.benchmarks.execution_cost import main as execution_cost_main
-
-        return execution_cost_main(argv[1:])
-    if argv[:1] == ["eval-profile"]:
-        from lerobot_focal.benchmarks.eval_profile import main as eval_profile_main
-
-        return eval_profile_main(argv[1:])
-    if argv[:1] == ["inference-modes"]:
-        from lerobot_focal.benchmarks.inference_modes import main as inference_modes_main
-
-        return inference_modes_main(argv[1:])
-    if argv[:1] == ["rollout"]:
-        from lerobot_focal.benchmarks.rollout_latency import main as rollout_main
-
-        return rollout_main(argv[1:])
-    if argv[:1] == ["cloud-content"]:
-        from lerobot_focal.benchmarks.cloud_content import main as cloud_content_main
-
-        return cloud_content_main(argv[1:])
-    if argv[:1] == ["allocator"]:
-        from lerobot_focal.benchmarks.allocator import main as allocator_main
-
-        return allocator_main(argv[1:])
-    if argv[:1] == ["train-step"]:
-        from lerobot_focal.benchmarks.train_step import main as train_step_main
-
-        return train_step_main(argv[1:])
+        return importlib.import_module(_DELEGATED[argv[0]]).main(argv[1:])
     args = parser.parse_args(argv)
 
     if args.command == "speed":

@@ -319,14 +319,17 @@ class FocalPolicy(PreTrainedPolicy):
         cond = net.encode(obs, image_features)
         b = cond.shape[0]
         shape = (b, self.config.horizon, self.config.action_feature.shape[0])
+        # The flow state in the weights' dtype: under autocast (--policy.use_amp) `cond` is bfloat16/float16, and
+        # actions in it break LeRobot's `.numpy()` of them (numpy has no bfloat16); the network still autocasts.
+        dtype = next(net.parameters()).dtype
         if noise is None:
-            x = torch.randn(shape, device=cond.device, dtype=cond.dtype)
+            x = torch.randn(shape, device=cond.device, dtype=dtype)
             if self.config.inference_noise_scale != 1.0:
                 x = x * self.config.inference_noise_scale
         else:
             if tuple(noise.shape) != shape:
                 raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")
-            x = noise.to(device=cond.device, dtype=cond.dtype)
+            x = noise.to(device=cond.device, dtype=dtype)
         times = torch.linspace(self.config.time_eps, 1.0, self.config.num_inference_steps + 1, device=x.device)
         guided = None
         if rtc is not None:  # None too for the first chunk (nothing to continue)

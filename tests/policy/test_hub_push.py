@@ -46,9 +46,16 @@ def test_train_pushes_a_folder_that_loads_back_with_a_focal_model_card(tmp_path)
     weights = load_file(pushed / "model.safetensors")
     assert any(k.startswith("ema_model.") for k in weights) and "ema_step" in weights  # the EMA travels
     card = (pushed / "README.md").read_text()
-    assert "FocalPolicy" in card and "ICML 2026" in card and "Locally Anchored Sampling" in card
     assert "license: apache-2.0" in card
-    for tag in ("focal", "focalpolicy", "flow-matching", "lerobot", "robotics"):
+    from lerobot.policies.pretrained import PreTrainedPolicy
+
+    if hasattr(PreTrainedPolicy, "generate_model_card"):  # 0.6.1: the push asks the policy for its card
+        assert "FocalPolicy" in card and "ICML 2026" in card and "Locally Anchored Sampling" in card
+        tags = ("focal", "focalpolicy", "flow-matching", "lerobot", "robotics")
+    else:  # LeRobot main renders its own card from the config alone (docs/compatibility.md)
+        assert "This is a **focal** policy trained with" in card
+        tags = ("focal", "lerobot", "robotics")
+    for tag in tags:
         assert f"- {tag}\n" in card, f"tag {tag} missing"
 
     # What a user of --policy.path gets: LeRobot's own loaders on the pushed folder, then one action.
