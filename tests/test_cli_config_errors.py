@@ -16,6 +16,8 @@ from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_data
 
 from .cli import assert_config_error, run_lerobot
 
+pytestmark = pytest.mark.subprocess  # each refusal through the real LeRobot command
+
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:

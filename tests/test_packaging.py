@@ -10,6 +10,10 @@ import sysconfig
 import zipfile
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.subprocess  # pip builds a wheel into a fresh venv
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -10,6 +10,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 PROBE = r'''
 import json, os, random, sys, types
 import numpy as np
@@ -55,6 +57,7 @@ def _probe(**env_extra: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.subprocess
 def test_importing_the_plugin_changes_nothing_global():
     result = _probe()
     assert result["policy_registered"]
@@ -63,6 +66,7 @@ def test_importing_the_plugin_changes_nothing_global():
     assert result["replaced"] == []
 
 
+@pytest.mark.subprocess
 def test_the_opt_in_fast_reader_is_the_one_visible_change():
     from lerobot_focal.datasets.fast_reader import compatible
 

@@ -9,12 +9,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.subprocess  # scripts/system_libs.sh and lerobot-info
+
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
 
 def test_system_libs_check_passes():
-    proc = subprocess.run([str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True,
+                          timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "FFmpeg (torchcodec), OSMesa" in proc.stdout
 
@@ -25,7 +30,8 @@ def test_lerobot_command_loads_torchcodec_quietly():
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
     assert "libtorchcodec" not in out and "Falling back to 'pyav'" not in out, (
-        "torchcodec cannot load FFmpeg: run ./scripts/setup.sh (installs ffmpeg) or apt-get install ffmpeg\n" + out[-3000:]
+        "torchcodec cannot load FFmpeg: run ./scripts/setup.sh (installs ffmpeg) or apt-get install ffmpeg\n"
+        + out[-3000:]
     )
 
 
@@ -33,6 +39,7 @@ def test_check_finds_ldconfig_outside_a_users_path():
     """A Debian user's PATH has no /sbin, where ldconfig lives: the check must still see the installed libraries."""
     env = {**os.environ, "PATH": "/usr/local/bin:/usr/bin:/bin"}
     proc = subprocess.run(
-        ["bash", str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True, timeout=60, env=env
+        ["bash", str(REPO / "scripts" / "system_libs.sh"), "--check"], capture_output=True, text=True, timeout=60,
+        env=env,
     )
     assert proc.returncode == 0, proc.stderr

@@ -33,13 +33,15 @@ GROUPS: list[tuple[str, re.Pattern]] = [
     ("focal env wrapper and metrics", re.compile(r"lerobot_focal/envs")),
     ("vector env + LeRobot env wrappers", re.compile(r"gymnasium/vector|gymnasium/core|lerobot/envs")),
     ("simulator (MuJoCo, MetaWorld, gymnasium MuJoCo)", re.compile(r"mujoco|metaworld|gymnasium/envs")),
-    ("policy (plugin policy code, torch)", re.compile(r"lerobot_focal/policy|torch/|<built-in method torch|<method '.*' of 'torch")),
+    ("policy (plugin policy code, torch)",
+     re.compile(r"lerobot_focal/policy|torch/|<built-in method torch|<method '.*' of 'torch")),
     ("LeRobot processors", re.compile(r"lerobot/processor")),
     ("LeRobot rollout loop", re.compile(r"lerobot/scripts/lerobot_eval")),
     ("video encoding (PyAV)", re.compile(r"av/|'av\.")),
     ("imports and start-up", re.compile(r"importlib|<frozen|draccus|site-packages/.*/__init__\.py")),
     ("numpy / scipy Python code (observations, metrics)", re.compile(r"site-packages/(numpy|scipy)/")),
-    ("Python standard library (mostly start-up: dataclasses, inspect, json)", re.compile(r"lib/python3\.\d+/(?!site-packages)")),
+    ("Python standard library (mostly start-up: dataclasses, inspect, json)",
+     re.compile(r"lib/python3\.\d+/(?!site-packages)")),
 ]
 
 

@@ -209,7 +209,8 @@ def plot(rows: list[Row], path: Path) -> None:
     fig, axes = plt.subplots(1, len(sizes), figsize=(6 * len(sizes), 3.6), squeeze=False)
     for ax, size in zip(axes[0], sizes, strict=True):
         sub = [r for r in rows if r.size == size]
-        ax.barh([r.what for r in sub], [r.median_ms for r in sub], color=["C0" if "focal" in r.what else "C7" for r in sub])
+        colors = ["C0" if "focal" in r.what else "C7" for r in sub]
+        ax.barh([r.what for r in sub], [r.median_ms for r in sub], color=colors)
         ax.set_xscale("log")
         ax.set_xlabel("median ms (log)")
         ax.set_title(f"U-Net {SIZES[size]}")
@@ -218,7 +219,9 @@ def plot(rows: list[Row], path: Path) -> None:
     save_png(fig, path, dpi=110)
 
 
-def run(sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path) -> list[Row]:
+def run(
+    sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path
+) -> list[Row]:
     torch.manual_seed(0)
     if device.startswith("cuda"):
         device_name = torch.cuda.get_device_name(0)

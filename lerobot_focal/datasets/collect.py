@@ -280,7 +280,8 @@ def collect(cfg: CollectConfig) -> dict:
     tasks = list(dict.fromkeys(t for group in env_cfg.tasks_by_group.values() for t in group))
     features = dataset_features(cfg)
     dataset = _open_dataset(cfg, features, env_cfg.fps)
-    done_counts = _episodes_per_task(cfg.root, cfg.repo_id) if cfg.root.joinpath("meta", "info.json").exists() else Counter()
+    has_info = cfg.root.joinpath("meta", "info.json").exists()
+    done_counts = _episodes_per_task(cfg.root, cfg.repo_id) if has_info else Counter()
     state = _load_state(cfg.root)
     want_pixels = "pixels" in cfg.obs_types
     total_needed = sum(max(0, cfg.episodes - done_counts[TASK_DESCRIPTIONS[t]]) for t in tasks)

@@ -61,7 +61,9 @@ def _features(obs_types, action_dim: int, num_points: int, image_hw: tuple[int, 
     if "pointcloud" in obs_types:
         features[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (num_points, 3), "names": ["points", "xyz"]}
     if "pixels" in obs_types:
-        features["observation.image"] = {"dtype": "image", "shape": (*image_hw, 3), "names": ["height", "width", "channels"]}
+        features["observation.image"] = {
+            "dtype": "image", "shape": (*image_hw, 3), "names": ["height", "width", "channels"]
+        }
     return features
 
 
@@ -100,12 +102,16 @@ def import_minari(cfg: ImportConfig) -> dict:
     root = Path(cfg.root)
     if root.exists() and any(root.iterdir()):
         raise SystemExit(f"{root} exists and is not empty; choose a new --root")
-    env_obs = "pointcloud" if "pointcloud" in cfg.obs_types else ("pixels_agent_pos" if "pixels" in cfg.obs_types else "state")
+    if "pointcloud" in cfg.obs_types:
+        env_obs = "pointcloud"
+    else:
+        env_obs = "pixels_agent_pos" if "pixels" in cfg.obs_types else "state"
     if "pointcloud" in cfg.obs_types and "pixels" in cfg.obs_types:
         raise SystemExit("import pointcloud and pixels into separate datasets (one env obs type per replay)")
     env_cfg = FocalAdroitEnvConfig(task=task, obs_type=env_obs, terminate_on_success=False, episode_length=10**6)
     action_dim = ADROIT_TASKS[task][1]
-    features = _features(cfg.obs_types, action_dim, env_cfg.num_points, (env_cfg.observation_height, env_cfg.observation_width))
+    image_hw = (env_cfg.observation_height, env_cfg.observation_width)
+    features = _features(cfg.obs_types, action_dim, env_cfg.num_points, image_hw)
     out = LeRobotDataset.create(
         repo_id=cfg.repo_id, fps=env_cfg.fps, features=features, root=root, use_videos=False, robot_type="adroit_hand",
     )
@@ -123,12 +129,15 @@ def import_minari(cfg: ImportConfig) -> dict:
             ep = dataset[int(meta["id"])]
             actions = np.asarray(ep.actions)
             if actions.ndim != 2 or actions.shape[1] != action_dim:
-                raise SystemExit(f"episode {meta['id']} actions have shape {actions.shape}; {task} needs (T, {action_dim})")
+                raise SystemExit(
+                    f"episode {meta['id']} actions have shape {actions.shape}; {task} needs (T, {action_dim})"
+                )
             stored = np.asarray(ep.observations) if isinstance(ep.observations, np.ndarray) else None
             frames, success, drift = replay_episode(env, int(meta["seed"]), actions, stored, "pixels" in cfg.obs_types)
             if drift > cfg.max_drift:
                 summary["diverged"] += 1
-                logging.warning("episode %s: replay drifts %.3g from the stored observations; skipped", meta["id"], drift)
+                logging.warning("episode %s: replay drifts %.3g from the stored observations; skipped",
+                                meta["id"], drift)
                 continue
             if cfg.only_successful and not success:
                 summary["failed"] += 1

@@ -75,7 +75,9 @@ def features(spec: SyntheticSpec) -> dict:
         feats[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (spec.num_points, 3), "names": None}
     if spec.with_image:
         s = spec.image_size
-        feats["observation.images.front"] = {"dtype": "image", "shape": (s, s, 3), "names": ["height", "width", "channel"]}
+        feats["observation.images.front"] = {
+            "dtype": "image", "shape": (s, s, 3), "names": ["height", "width", "channel"]
+        }
     return feats
 
 
@@ -96,7 +98,9 @@ def episode_arrays(spec: SyntheticSpec, episode: int) -> dict[str, np.ndarray]:
     return out
 
 
-def write_synthetic_dataset(root: str | Path, spec: SyntheticSpec, repo_id: str = "local/focal_synthetic") -> LeRobotDataset:
+def write_synthetic_dataset(
+    root: str | Path, spec: SyntheticSpec, repo_id: str = "local/focal_synthetic"
+) -> LeRobotDataset:
     """Write `spec.num_episodes` episodes to `root` as a LeRobotDataset (images as PNG, no video encoding)."""
     ds = LeRobotDataset.create(repo_id=repo_id, fps=spec.fps, features=features(spec), root=root, use_videos=False)
     for ep in range(spec.num_episodes):

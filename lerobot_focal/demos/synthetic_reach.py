@@ -87,7 +87,8 @@ def plot(spec: SyntheticSpec, predicted: list[np.ndarray], path: Path) -> None:
         true = episode_arrays(held, ep)["action"]
         color = f"C{ep}"
         ax.plot(true[:, 0], true[:, 1], color=color, lw=3, alpha=0.35, label="demonstration" if ep == 0 else None)
-        ax.plot(pred[:, 0], pred[:, 1], color=color, lw=1.2, marker=".", label="focal (1 NFE / chunk)" if ep == 0 else None)
+        ax.plot(pred[:, 0], pred[:, 1], color=color, lw=1.2, marker=".",
+                label="focal (1 NFE / chunk)" if ep == 0 else None)
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_title("Held-out episodes: focal vs demonstration")

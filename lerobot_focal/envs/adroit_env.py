@@ -181,7 +181,9 @@ class FocalAdroitEnv(gym.Env):
         if terminated or truncated:
             atv = self.metrics.finish(is_success)["action_total_variation"]
             info["action_total_variation"] = atv
-            info["final_info"] = {"task": self.task, "done": True, "is_success": is_success, "action_total_variation": atv}
+            info["final_info"] = {
+                "task": self.task, "done": True, "is_success": is_success, "action_total_variation": atv
+            }
         return self._obs(), float(reward), terminated, truncated, info
 
     def close(self) -> None:

@@ -81,7 +81,9 @@ class FocalAdroitEnvConfig(FocalSimEnvConfig):
         self.tasks = resolve_names(requested, ADROIT_TASKS, ADROIT_GROUPS, "Adroit task")
         action_dims = {ADROIT_TASKS[t][1] for t in self.tasks}
         if len(action_dims) != 1:
-            raise ValueError(f"tasks {self.tasks} have different action sizes {sorted(action_dims)}; evaluate them separately")
+            raise ValueError(
+                f"tasks {self.tasks} have different action sizes {sorted(action_dims)}; evaluate them separately"
+            )
         self.features = env_features(
             self.obs_type,
             action_dim=action_dims.pop(),

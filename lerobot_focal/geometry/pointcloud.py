@@ -233,7 +233,9 @@ def cached_depth_crop(
 BUCKET_FPS_MIN_POINTS = 8192
 
 
-def farthest_point_sample(points: np.ndarray, num_points: int, start_index: int = 0, exact: bool | None = None) -> np.ndarray:
+def farthest_point_sample(
+    points: np.ndarray, num_points: int, start_index: int = 0, exact: bool | None = None
+) -> np.ndarray:
     """Farthest-point sampling to exactly ``num_points`` rows, deterministic for a given input.
 
     Starts at ``start_index`` (DP3 starts at the first point too, so equal inputs give equal clouds).

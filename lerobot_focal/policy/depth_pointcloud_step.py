@@ -143,7 +143,8 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
             valid = frames[frames > 0]
             if valid.size and float(np.median(valid)) < 20.0:
                 raise ValueError(
-                    f"{DEPTH_TO_POINTCLOUD_STEP}: '{self.depth_key}' looks like metres (median {np.median(valid):.3g}), "
+                    f"{DEPTH_TO_POINTCLOUD_STEP}: '{self.depth_key}' looks like metres "
+                    f"(median {np.median(valid):.3g}), "
                     "but float depth is read as millimetres. Train without --dataset.depth_output_unit=m, or set "
                     "--policy.pointcloud_depth_unit=m."
                 )
@@ -173,7 +174,8 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
         if self.depth_key not in observation:
             raise KeyError(
                 f"{DEPTH_TO_POINTCLOUD_STEP}: the observation has no '{self.depth_key}', from which this policy "
-                f"builds '{self.pointcloud_key}'. Present: {sorted(k for k in observation if k.startswith('observation'))}. "
+                f"builds '{self.pointcloud_key}'. "
+                f"Present: {sorted(k for k in observation if k.startswith('observation'))}. "
                 "Run the robot with that depth camera (ur10e: a RealSense camera with use_depth: true; the sim "
                 "backend always provides front_depth), or map your key to it with --rename_map."
             )

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from lerobot_focal.benchmarks.allocator import main as allocator_main
 from lerobot_focal.benchmarks.grid.presets import PRESETS
 from lerobot_focal.benchmarks.grid.run import MALLOC_ENV, child_env
@@ -18,6 +20,7 @@ def test_runs_get_the_heap_only_malloc_settings_unless_the_user_set_their_own(mo
     assert env["OMP_NUM_THREADS"] == "1" and env["HF_HUB_OFFLINE"] == "1"
 
 
+@pytest.mark.subprocess
 def test_allocator_benchmark_times_both_settings_in_child_processes_with_identical_results(tmp_path):
     assert allocator_main(["--inputs", "state", "--rounds", "1", "--steps", "2", "--batch", "8",
                            "--out", str(tmp_path)]) == 0  # exit 1 if the settings changed the loss or weights

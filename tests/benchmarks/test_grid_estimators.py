@@ -46,7 +46,8 @@ def test_fresh_evaluations_are_distinct_per_seed_and_evaluation_and_clear_of_eve
         for a, (k, i, seeds) in enumerate(evaluations):
             for j, e, other in evaluations[a + 1:]:
                 assert not seeds & other, (name, (k, i), (j, e))  # every evaluation of every seed: new placements
-    demos = [set(range(r.start, r.stop)) for k in preset.seeds for r in run_seed_ranges(preset, k) if r.purpose == "demos"]
+    demos = [set(range(r.start, r.stop))
+             for k in preset.seeds for r in run_seed_ranges(preset, k) if r.purpose == "demos"]
     if preset.demos_per_seed:
         assert all(not a & b for i, a in enumerate(demos) for b in demos[i + 1:])
     else:
@@ -197,6 +198,7 @@ def test_a_fresh_evaluation_resets_other_placements_than_the_last_one(tmp_path):
     assert sorted(seeds) == [1_000_000, 1_000_001, 1_000_002, 1_000_003]  # recorded: the seeds that placed them
 
 
+@pytest.mark.subprocess
 def test_a_tiny_grid_evaluates_fresh_placements_and_its_final_checkpoint_is_rescored(tmp_path):
     """A real run (reach, 4 steps, an evaluation of 2 episodes every 2 steps) with --periodic-eval fresh: LeRobot's
     two periodic evaluations reset other placements; then `lerobot-focal-bench rescore` scores its final checkpoint

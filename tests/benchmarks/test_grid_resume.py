@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+import pytest
+
 from lerobot_focal.benchmarks.grid.resume import (
     checkpoints,
     earlier_segments,
@@ -98,6 +100,7 @@ def test_pruning_keeps_the_newest_checkpoints(tmp_path):
     assert sorted(checkpoints(run)) == [8] and (run / "train" / "checkpoints" / "last").resolve().name == "000008"
 
 
+@pytest.mark.subprocess
 def test_housekeeping_runs_beside_the_child_and_its_errors_do_not_stop_it(tmp_path):
     import sys
 

@@ -19,6 +19,8 @@ from lerobot_focal.benchmarks.grid.presets import PRESETS
 from lerobot_focal.benchmarks.grid.results import ResultsFile
 from lerobot_focal.benchmarks.grid.run import RunSpec
 
+pytestmark = pytest.mark.subprocess  # grid runs: lerobot-train and lerobot-eval processes
+
 TINY = dict(steps=4, eval_every=2, eval_episodes=2, demos=2, heldout_demos=1, episode_length=100, batch_size=8)
 TINY_ARGS = ["--steps", "4", "--eval-every", "2", "--eval-episodes", "2", "--demos", "2", "--heldout-demos", "1",
              "--episode-length", "100", "--batch-size", "8", "--tasks", "reach", "--seeds", "0"]
@@ -68,7 +70,8 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert sorted(e["seed"] for e in own) == [expert_gap.EXPERT_GAP_SEED, expert_gap.EXPERT_GAP_SEED + 1]
     assert (run_dir / "eval_episodes.jsonl").read_text() == grid_episodes  # the run's own files are untouched
     split = gap["placement"]  # each start against the demos' range of observation.environment_state
-    assert split["inside"][1] + split["outside"][1] == 2 and split["inside"][0] + split["outside"][0] == gap["successes"]
+    assert split["inside"][1] + split["outside"][1] == 2
+    assert split["inside"][0] + split["outside"][0] == gap["successes"]
     md = (out / "expert_gap.md").read_text()
     assert (out / "expert_gap.png").stat().st_size > 5000 and "reach · focal · 0" in md and "| reach · focal | " in md
     capsys.readouterr()
@@ -87,7 +90,8 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
         assert 0 < p["frames"] <= 16 and len(p["proximal"]) == len(p["macro"]) == len(p["taus"])
         assert all(x >= 0 for x in p["proximal"] + p["macro"]) and p["reference"]["macro"] > 0
         assert p["proximal"][-1] < p["proximal"][0]  # f(M_0.99) is within (1 − τ)·|v − u| of the data
-    assert (out / "tau_profile.png").stat().st_size > 5000 and "| reach · focal |" in (out / "tau_profile.md").read_text()
+    assert (out / "tau_profile.png").stat().st_size > 5000
+    assert "| reach · focal |" in (out / "tau_profile.md").read_text()
     capsys.readouterr()
     assert tau_profile.main(["--out", str(out), "--work", str(work), "--frames", "16"]) == 0
     assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped

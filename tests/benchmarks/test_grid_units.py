@@ -80,7 +80,8 @@ def test_every_paper_ablation_is_a_method_with_its_switch():
         assert f"--policy.ablation={name}" in METHODS[name].train_args(PRESETS["cpu"])
     assert "--policy.consistency_target=online" in METHODS["focal_online"].train_args(PRESETS["cpu"])
     macro = METHODS["wo_las_macro"].train_args(PRESETS["cpu"])
-    assert {"--policy.ablation=wo_las", "--policy.time_loss_window=macro", "--policy.consistency_target=online"} <= set(macro)
+    assert {"--policy.ablation=wo_las", "--policy.time_loss_window=macro",
+            "--policy.consistency_target=online"} <= set(macro)
     one_segment = METHODS["wo_fco_las_1seg"].train_args(PRESETS["cpu"])
     assert {"--policy.ablation=wo_fco_las", "--policy.cfm_num_segments=1"} <= set(one_segment)
     paper = [m.name for m in resolve_methods("all")]
@@ -265,7 +266,8 @@ def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end(
     gap[2] = 2.0
     out = summarise(gap, last=np.array([29, 59, 59]), success=np.array([True, False, False]),
                     ever_grasped=np.array([True, False, True]))
-    assert (out["episodes"], out["successes"], out["failures_never_grasped"], out["successes_never_grasped"]) == (3, 1, 1, 0)
+    counts = (out["episodes"], out["successes"], out["failures_never_grasped"], out["successes_never_grasped"])
+    assert counts == (3, 1, 1, 0)
     assert [(r["start"], r["episodes"], r["gap"][0]) for r in out["windows"]["success"]] == [(0, 1, 0.1), (25, 1, 0.1)]
     assert [(r["start"], r["episodes"], r["gap"][3]) for r in out["windows"]["failure"]] == [
         (0, 2, 1.25), (25, 2, 1.5), (50, 2, 1.5)]
@@ -302,8 +304,9 @@ def test_demo_heldout_and_evaluation_seeds_never_overlap():
 
 
 def test_a_second_evaluation_of_the_final_checkpoint_keeps_its_own_files_and_the_same_episodes(tmp_path):
-    """variant_eval re-evaluates the grid's final checkpoint (e.g. with online weights) on the same fresh episodes: same seed
-    and episode count, but its own episode file, output folder and job name, so the grid's own stay intact."""
+    """variant_eval re-evaluates the grid's final checkpoint (e.g. with online weights) on the same fresh episodes:
+    same seed and episode count, but its own episode file, output folder and job name, so the grid's own stay
+    intact."""
     from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
     from lerobot_focal.benchmarks.grid.run import final_eval_command
 
@@ -352,15 +355,18 @@ def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocation
     assert elapsed_s([]) == 0.0
     # A run interrupted at 12:10 and resumed next day counts its two spans, not the night between.
     resumed = {"started_at": "2026-01-02T09:00:00", "finished_at": "2026-01-02T09:30:00",
-               "spans": [["2026-01-01T12:00:00", "2026-01-01T12:10:00"], ["2026-01-02T09:00:00", "2026-01-02T09:30:00"]]}
+               "spans": [["2026-01-01T12:00:00", "2026-01-01T12:10:00"],
+                         ["2026-01-02T09:00:00", "2026-01-02T09:30:00"]]}
     assert elapsed_s([*records, resumed]) == 30 * 60 + 15 * 60 + 10 * 60 + 30 * 60
 
 
 def test_variant_table_pairs_success_and_atv_and_keeps_run_keys_out_of_the_column_separators():
     from lerobot_focal.benchmarks.grid.variant_eval import render
 
-    done = {"basketball|focal|0": {"grid": 0.42, "variant": 0.30, "episodes": 50, "atv_grid": 0.20, "atv_variant": 0.10},
-            "pick-place|focal|0": {"grid": 0.40, "variant": 0.40, "episodes": 50, "atv_grid": 0.10, "atv_variant": 0.08},
+    done = {"basketball|focal|0": {"grid": 0.42, "variant": 0.30, "episodes": 50,
+                                   "atv_grid": 0.20, "atv_variant": 0.10},
+            "pick-place|focal|0": {"grid": 0.40, "variant": 0.40, "episodes": 50,
+                                   "atv_grid": 0.10, "atv_variant": 0.08},
             "push-wall|focal|1": {"grid": 0.70, "variant": 0.60, "episodes": 50}}  # compared before ATV was kept
     md = render("noise0", done)
     rows = [line for line in md.splitlines() if line.startswith("| basketball") or line.startswith("| push-wall")]

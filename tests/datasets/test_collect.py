@@ -43,6 +43,7 @@ def _replay_success_steps(episode_actions, seed):
         env.close()
 
 
+@pytest.mark.subprocess
 def test_collect_interrupt_then_resume(tmp_path):
     root = tmp_path / "mw"
     args = ["--root", str(root), "--tasks", "reach", "--episodes", "3"]
@@ -86,6 +87,7 @@ def test_collect_interrupt_then_resume(tmp_path):
         assert _replay_success_steps(actions, seed=ep) >= 5
 
 
+@pytest.mark.subprocess
 def test_collect_until_success_stops_at_the_first_success(tmp_path):
     root = tmp_path / "mw_short"
     proc = _collect("--root", str(root), "--tasks", "reach", "--episodes", "2", "--obs_types", "state",
@@ -101,6 +103,7 @@ def test_collect_until_success_stops_at_the_first_success(tmp_path):
         assert _replay_success_steps(actions, seed=ep) == 1  # the episode ends on its first success
 
 
+@pytest.mark.subprocess
 def test_collect_drops_failed_episodes(tmp_path):
     root = tmp_path / "mw_fail"
     proc = _collect("--root", str(root), "--tasks", "pick-place", "--episodes", "1", "--max_steps", "5",

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.subprocess  # lerobot-focal-collect killed with SIGKILL
+
 pytest.importorskip("metaworld")
 
 BIN = Path(sys.executable).parent

@@ -225,7 +225,8 @@ def test_lerobot_train_runs_with_the_fast_reader(pc_root, tmp_path):
     """LeRobot's own training entry point, two steps, with the reader installed by the launcher."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "WANDB_MODE": "disabled"}
     repo = Path(__file__).resolve().parents[2]
-    cmd = [sys.executable, "-m", "lerobot_focal.datasets.fast_reader", f"--config_path={repo / 'configs/focal_cpu.json'}",
+    cmd = [sys.executable, "-m", "lerobot_focal.datasets.fast_reader",
+           f"--config_path={repo / 'configs/focal_cpu.json'}",
            f"--dataset.repo_id={REPO_ID}", f"--dataset.root={pc_root}", "--batch_size=8", "--steps=2", "--log_freq=1",
            "--save_checkpoint=false", f"--output_dir={tmp_path / 'out'}", "--policy.down_dims=[16,32,64]"]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.subprocess  # the import command
+
 minari = pytest.importorskip("minari")
 pytest.importorskip("gymnasium_robotics")
 

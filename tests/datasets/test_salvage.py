@@ -14,6 +14,8 @@ from lerobot.datasets import LeRobotDataset
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, features
 
+pytestmark = pytest.mark.subprocess  # the salvage command
+
 
 def test_salvage_recovers_every_saved_episode_of_an_unclosed_dataset(tmp_path):
     spec = SyntheticSpec(num_episodes=3, episode_length=12, num_points=8, with_image=True, image_size=16)

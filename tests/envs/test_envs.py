@@ -214,6 +214,7 @@ def test_metaworld_truncates_at_episode_length():
         env.close()
 
 
+@pytest.mark.subprocess
 def test_metaworld_vector_env_and_processor():
     """create_envs -> async vector env (lerobot-eval's default for batch_size > 1, simulators in worker
     processes); the env processor yields (B, 512, 3)."""

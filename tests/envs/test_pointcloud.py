@@ -140,6 +140,7 @@ def test_depth_crop_gives_the_points_of_backprojection_then_crop(eye, low, high)
     assert cached_depth_crop(intr, pose, as_arrays) is cached_depth_crop(intr, pose, WorkspaceBounds(low, high))
 
 
+@pytest.mark.subprocess
 def test_raycast_matches_osmesa_render():
     """Same state, same camera: ray-cast depth vs OSMesa's z-buffer, and the clouds made from each.
 
@@ -156,7 +157,8 @@ def test_raycast_matches_osmesa_render():
     if not ctypes.util.find_library("OSMesa"):
         if os.environ.get("LEROBOT_FOCAL_SKIP_SYSTEM_LIBS") == "1":
             pytest.skip("OSMesa missing and LEROBOT_FOCAL_SKIP_SYSTEM_LIBS=1")
-        pytest.fail("libOSMesa is not installed: run ./scripts/setup.sh (it installs libosmesa6) or apt-get install libosmesa6")
+        pytest.fail("libOSMesa is not installed: run ./scripts/setup.sh (it installs libosmesa6) "
+                    "or apt-get install libosmesa6")
     env = {**os.environ, "MUJOCO_GL": "osmesa", "PYOPENGL_PLATFORM": "osmesa", "PYTHONPATH": str(REPO)}
     result = subprocess.run(
         [sys.executable, "-m", "tests.envs._opengl_compare"], cwd=REPO, env=env, capture_output=True, text=True,

@@ -9,6 +9,7 @@ import pytest
 from lerobot_focal.config_errors import ConfigError
 
 
+@pytest.mark.subprocess
 def test_import_registers_configs_without_simulators():
     code = (
         "import sys, lerobot_focal.envs\n"
@@ -48,6 +49,7 @@ def test_adroit_config_action_dims():
         FocalAdroitEnvConfig(task="all")
 
 
+@pytest.mark.subprocess
 def test_lerobots_lazy_async_vector_env_is_what_the_envs_expect():
     """Async evaluation uses LeRobot's private `_LazyAsyncVectorEnv` (lerobot_focal/envs/vector.py says why). If
     LeRobot renames it or changes its constructor or laziness, this fails here, not in a user's lerobot-eval."""

@@ -13,9 +13,10 @@ lerobot-train.
 Exit workaround (torch 2.11 + gloo, not a policy issue): when `train()` returns, freeing the DDP wrapper destroys
 its Reducer, which drops the last reference to the gloo process group while holding the GIL; ~ProcessGroupGloo
 then joins its worker thread, which may be waiting for the GIL to free a finished all-reduce's tensors: the
-rank hangs forever after "End of training" (seen once in six 2-process runs here; gdb: ProcessGroupGloo::~ProcessGroupGloo
--> thread::join vs. AsyncAllreduceWork::~AsyncAllreduceWork -> take_gil). So, in a multi-process run, the
-probe leaves each rank with os._exit right after LeRobot's own `accelerator.end_training()`: everything
+rank hangs forever after "End of training" (seen once in six 2-process runs here; gdb:
+ProcessGroupGloo::~ProcessGroupGloo -> thread::join vs. AsyncAllreduceWork::~AsyncAllreduceWork -> take_gil).
+So, in a multi-process run, the probe leaves each rank with os._exit right after LeRobot's own
+`accelerator.end_training()`: everything
 (checkpoints, logs, the process group's shutdown) is done by then.
 """
 

@@ -110,7 +110,8 @@ def runs(tmp_path_factory):
         "--num_workers=0",
     ]
     one = _run([sys.executable], [*common, f"--output_dir={tmp / 'one'}"], tmp=tmp, probe_dir=tmp / "probe_one")
-    two = _run(_accelerate(_free_port()), [*common, f"--output_dir={tmp / 'two'}"], tmp=tmp, probe_dir=tmp / "probe_two")
+    two = _run(_accelerate(_free_port()), [*common, f"--output_dir={tmp / 'two'}"], tmp=tmp,
+               probe_dir=tmp / "probe_two")
     train_cfg = tmp / "two" / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
     resumed = _run(
         _accelerate(_free_port()),
@@ -139,7 +140,8 @@ def test_same_step_count_and_finite_losses(runs):
         for step in ("000002", "000004"):
             assert (tmp / name / "checkpoints" / step / "pretrained_model" / "model.safetensors").is_file()
         # (Not "last": the resume test below moves the 2-process run's "last" on to step 6.)
-        state = json.loads((tmp / name / "checkpoints" / f"{STEPS:06d}" / "training_state" / "training_step.json").read_text())
+        step_file = tmp / name / "checkpoints" / f"{STEPS:06d}" / "training_state" / "training_step.json"
+        state = json.loads(step_file.read_text())
         assert state["step"] == STEPS
         losses = _logged_losses(runs[name])
         assert sorted(losses) == list(range(1, STEPS + 1)), losses

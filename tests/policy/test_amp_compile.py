@@ -80,6 +80,7 @@ def amp_metaworld_run(tmp_path_factory):
     return tmp, ckpt, log
 
 
+@pytest.mark.subprocess
 def test_lerobot_train_with_use_amp_trains_with_finite_losses(amp_metaworld_run):
     _, ckpt, log = amp_metaworld_run
     losses = [float(v) for v in re.findall(r"step:\d+ .*? loss:(\S+)", log)]
@@ -88,6 +89,7 @@ def test_lerobot_train_with_use_amp_trains_with_finite_losses(amp_metaworld_run)
     assert train_cfg["policy"]["use_amp"] is True and train_cfg["policy"]["device"] == "cpu"
 
 
+@pytest.mark.subprocess
 def test_lerobot_eval_with_use_amp_runs_the_amp_checkpoint(amp_metaworld_run):
     tmp, ckpt, _ = amp_metaworld_run
     out = tmp / "eval"
@@ -111,6 +113,7 @@ def ur10e_checkpoint(tmp_path_factory):
     return tmp, ckpt
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("backend", ["eager", pytest.param("inductor", marks=pytest.mark.slow)])
 def test_lerobot_rollout_with_use_torch_compile_drives_the_twin(ur10e_checkpoint, backend):
     tmp, ckpt = ur10e_checkpoint

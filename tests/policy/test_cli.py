@@ -22,13 +22,16 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
 from lerobot_focal.policy import FocalPolicy
 
+pytestmark = pytest.mark.subprocess  # real lerobot-train runs
+
 REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 
 def _train(*args: str, cwd: Path, **extra_env: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", **extra_env}
-    proc = subprocess.run([str(BIN / "lerobot-train"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([str(BIN / "lerobot-train"), *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=600)
     if proc.returncode != 0:
         raise AssertionError(f"lerobot-train failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
     return proc
@@ -38,7 +41,8 @@ def _train(*args: str, cwd: Path, **extra_env: str) -> subprocess.CompletedProce
 def trained_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli")
     root = tmp / "dataset"
-    write_synthetic_dataset(root, SyntheticSpec(num_episodes=3, episode_length=20, num_points=64, with_image=True, image_size=32))
+    spec = SyntheticSpec(num_episodes=3, episode_length=20, num_points=64, with_image=True, image_size=32)
+    write_synthetic_dataset(root, spec)
     out = tmp / "run"
     first = _train(
         f"--config_path={REPO / 'configs' / 'focal_cpu.json'}",

@@ -15,6 +15,8 @@ from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_data
 
 from ..cli import assert_config_error, run_lerobot
 
+pytestmark = pytest.mark.subprocess  # each refusal through the real lerobot-train
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -41,7 +43,8 @@ BAD = {
     "freq_weight": (["--policy.freq_weight=-1.0"], "--policy.type=focal: freq_weight must be a number ≥ 0, got -1.0."),
     "time_weight": (["--policy.time_weight=-1.0"], "time_weight must be a number ≥ 0, got -1.0."),
     "ema_power": (["--policy.ema_power=0"], "ema_power must be a number > 0, got 0"),
-    "freq_cutoff": (["--policy.freq_band=high", "--policy.freq_cutoff=12"], "freq_cutoff must be in (0, 12) for freq_band='high'"),
+    "freq_cutoff": (["--policy.freq_band=high", "--policy.freq_cutoff=12"],
+                    "freq_cutoff must be in (0, 12) for freq_band='high'"),
     "lr": (["--policy.optimizer_lr=-0.001"], "optimizer_lr must be a number > 0, got -0.001."),
 }
 CASES = [(name, False) for name in BAD] + [("horizon", True), ("conflict", True), ("freq_weight", True)]

@@ -14,13 +14,16 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, features
 
+pytestmark = pytest.mark.subprocess  # lerobot-train on a poisoned dataset
+
 BIN = Path(sys.executable).parent
 
 
 def _write(root: Path, key: str, episode: int, frame: int, dim: int, value: float) -> None:
     """The synthetic dataset with one poisoned value, written through LeRobot's own writer (stats included)."""
     spec = SyntheticSpec(num_episodes=3, episode_length=16, num_points=16)
-    ds = LeRobotDataset.create(repo_id="local/poisoned", fps=spec.fps, features=features(spec), root=root, use_videos=False)
+    ds = LeRobotDataset.create(repo_id="local/poisoned", fps=spec.fps, features=features(spec), root=root,
+                               use_videos=False)
     for ep in range(spec.num_episodes):
         arrays = episode_arrays(spec, ep)
         if ep == episode:
@@ -55,6 +58,7 @@ def test_nonfinite_value_is_named_before_training(key, episode, frame, dim, valu
     err = proc.stderr
     assert f"normalisation statistics are not finite for '{key}' ({stats})" in err, err[-3000:]
     assert f"episode {episode} frame {frame} has {key}[{dim}] = {value}" in err
-    fix = f'--repo_id local/poisoned --root {root} --operation.type delete_episodes --operation.episode_indices "[{episode}]"'
+    fix = (f'--repo_id local/poisoned --root {root} --operation.type delete_episodes '
+           f'--operation.episode_indices "[{episode}]"')
     assert f"lerobot-edit-dataset {fix}" in err
     assert not (tmp_path / "run" / "checkpoints").exists()

@@ -19,6 +19,8 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 
+pytestmark = pytest.mark.subprocess  # lerobot-eval on broken checkpoints
+
 pytest.importorskip("metaworld")
 
 BIN = Path(sys.executable).parent
@@ -39,7 +41,9 @@ def _checkpoint(path: Path, *, cloud_channels: int) -> Path:
     policy = FocalPolicy(cfg)
     stats = {
         "observation.state": {"min": torch.full((9,), -1.0), "max": torch.full((9,), 1.0)},
-        "observation.pointcloud": {"min": torch.full((cloud_channels,), -1.0), "max": torch.full((cloud_channels,), 1.0)},
+        "observation.pointcloud": {
+            "min": torch.full((cloud_channels,), -1.0), "max": torch.full((cloud_channels,), 1.0)
+        },
         "action": {"min": torch.full((4,), -1.0), "max": torch.full((4,), 1.0)},
     }
     pre, post = make_focal_pre_post_processors(cfg, dataset_stats=stats)

@@ -162,7 +162,9 @@ def test_config_declares_the_pointcloud_input_and_the_policy_reads_it(tmp_path):
     # calls this hook, which adds the cloud — or says which depth keys the dataset has.
     cfg2 = _config(tmp_path, input_features={})
     cfg2.input_features = {"observation.state": PolicyFeature(FeatureType.STATE, (13,))}
-    cfg2.set_dataset_feature_metadata({DEPTH_KEY: {"dtype": "video", "shape": [H, W, 1], "info": {"is_depth_map": True}}})
+    cfg2.set_dataset_feature_metadata(
+        {DEPTH_KEY: {"dtype": "video", "shape": [H, W, 1], "info": {"is_depth_map": True}}}
+    )
     assert cfg2.input_features["observation.pointcloud"].shape == (512, 3)
     with pytest.raises(ValueError, match=r"not a feature of the dataset.*\['observation.images.wrist_depth'\]"):
         cfg2.set_dataset_feature_metadata({"observation.images.wrist_depth": {"info": {"is_depth_map": True}}})

@@ -156,6 +156,7 @@ def trained(tmp_path_factory):
     return root, out
 
 
+@pytest.mark.subprocess
 def test_lerobot_train_diffusion_ema_checkpoint_holds_the_ema_and_reloads(trained):
     root, out = trained
     model_dir = out / "checkpoints" / "last" / "pretrained_model"

@@ -204,7 +204,8 @@ def test_config_validation_and_factory_resolution():
     cfg = _config()
     assert cfg.type == "diffusion_fco"
     assert cfg.fco_window("executed") == slice(1, 9) and cfg.fco_window("horizon") == slice(0, 16)
-    stats = {k: {"min": torch.full(f.shape, -1.0), "max": torch.full(f.shape, 1.0)} for k, f in {**cfg.input_features, **cfg.output_features}.items()}
+    stats = {k: {"min": torch.full(f.shape, -1.0), "max": torch.full(f.shape, 1.0)}
+             for k, f in {**cfg.input_features, **cfg.output_features}.items()}
     pre, post = make_pre_post_processors(cfg, dataset_stats=stats)  # resolved by naming convention
     assert pre is not None and post is not None
 
@@ -229,7 +230,8 @@ def _write_dataset(root: Path) -> None:
             ds.add_frame(
                 {
                     "observation.state": np.concatenate([pos[i], goal[0]]).astype(np.float32),
-                    "observation.environment_state": np.concatenate([goal[0], pos[i], goal[0] - pos[i]]).astype(np.float32),
+                    "observation.environment_state":
+                        np.concatenate([goal[0], pos[i], goal[0] - pos[i]]).astype(np.float32),
                     "action": pos[i + 1],
                     "task": "reach",
                 }
@@ -243,7 +245,8 @@ def trained(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("dp_fco")
     root, out = tmp / "dataset", tmp / "run"
     _write_dataset(root)
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1", "LEROBOT_FOCAL_FAST_READER": "1"}
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1",
+           "LEROBOT_FOCAL_FAST_READER": "1"}
     args = [
         str(BIN / "lerobot-train"),
         "--policy.type=diffusion_fco",
@@ -273,6 +276,7 @@ def trained(tmp_path_factory):
     return root, out, proc.stdout + proc.stderr
 
 
+@pytest.mark.subprocess
 def test_lerobot_train_diffusion_fco_checkpoint_reloads_and_acts(trained):
     root, out, log = trained
     assert "columns cached in memory" in log  # the plugin (and its fast reader) was loaded by lerobot-train

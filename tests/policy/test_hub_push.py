@@ -16,6 +16,8 @@ from safetensors.torch import load_file
 
 from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
 
+pytestmark = pytest.mark.subprocess  # lerobot-train and lerobot-focal-collect up to the (stubbed) upload
+
 REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 STUB_SITE = Path(__file__).resolve().parent / "hub_stub_site"

@@ -21,6 +21,8 @@ from lerobot.utils.feature_utils import dataset_to_policy_features
 from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 
+pytestmark = pytest.mark.heavy  # a short in-process training run, about 2.5 minutes on 2 cores
+
 # 600 steps put the trained policy at ~0.6x the hold-position error (the assertion is < 1x), ~45 s of training
 # on one idle CPU core. The test runs on one thread: on a loaded 2-core machine, torch's default of one thread
 # per core makes its threads wait on each other behind the other processes, which once took this test past
@@ -66,7 +68,8 @@ def test_short_training_run_predicts_heldout_trajectories(tmp_path):
     feats = dataset_to_policy_features(meta.features)
     cfg.output_features = {k: f for k, f in feats.items() if k == ACTION}
     cfg.input_features = {k: f for k, f in feats.items() if k != ACTION}
-    ds = LeRobotDataset("local/focal_synthetic", root=tmp_path / "ds", delta_timestamps=resolve_delta_timestamps(cfg, meta))
+    ds = LeRobotDataset("local/focal_synthetic", root=tmp_path / "ds",
+                        delta_timestamps=resolve_delta_timestamps(cfg, meta))
     items = [ds[i] for i in range(len(ds))]
     pre, post = make_focal_pre_post_processors(cfg, dataset_stats=meta.stats)
     policy = FocalPolicy(cfg)

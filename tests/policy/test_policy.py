@@ -102,7 +102,8 @@ def test_save_and_reload_give_identical_actions(tmp_path):
     loaded = FocalPolicy.from_pretrained(tmp_path).eval()
     assert int(loaded.ema_step) == 3
     obs, noise = _obs(b=3), torch.randn(3, 12, 3)
-    torch.testing.assert_close(policy.predict_action_chunk(obs, noise=noise), loaded.predict_action_chunk(obs, noise=noise))
+    torch.testing.assert_close(policy.predict_action_chunk(obs, noise=noise),
+                               loaded.predict_action_chunk(obs, noise=noise))
     for (k, a), (_, b) in zip(policy.state_dict().items(), loaded.state_dict().items(), strict=True):
         torch.testing.assert_close(a, b, msg=k)
 

@@ -5,6 +5,10 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.subprocess  # a fresh interpreter, to see what importing loads
+
 
 def test_registration_imports_no_simulator_or_hardware_library():
     code = (

@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 import torch
 
+pytestmark = pytest.mark.subprocess  # lerobot-record / -train / -rollout / -teleoperate on the twin
+
 pytest.importorskip("mujoco")
 pytest.importorskip("pygame")
 
@@ -366,7 +368,8 @@ def test_focal_pointcloud_from_depth_trains_and_rolls_out_with_the_same_clouds(r
     # The training path on the same frames: the rollout dataset's decoded depth video, in the (B, n_obs, 1, H, W)
     # float layout of a training batch, through the step reloaded from the checkpoint.
     pre = PolicyProcessorPipeline.from_pretrained(
-        model, config_filename="policy_preprocessor.json", to_transition=batch_to_transition, to_output=transition_to_batch
+        model, config_filename="policy_preprocessor.json", to_transition=batch_to_transition,
+        to_output=transition_to_batch,
     )
     step = next(s for s in pre.steps if isinstance(s, DepthToPointCloudProcessorStep))
     ds = _load_any("local/rollout_ur10e_pc", rollout_root)
@@ -396,7 +399,8 @@ def _load_any(repo_id: str, root: Path):
 
 def test_teleoperate_with_virtual_gamepad_moves_the_sim_arm(tmp_path):
     log = tmp_path / "teleop.log"
-    args = [str(BIN / "lerobot-teleoperate"), *ROBOT[:2], "--teleop.type=focal_gamepad", "--fps=30", "--teleop_time_s=3"]
+    args = [str(BIN / "lerobot-teleoperate"), *ROBOT[:2], "--teleop.type=focal_gamepad", "--fps=30",
+            "--teleop_time_s=3"]
     _run(args, _env(tmp_path, pad=True), log, timeout=180)
     m = re.search(r"UR10e disconnected after (\d+) commands \(commanded TCP path ([\d.]+) m\)", log.read_text())
     assert m, _tail(log)

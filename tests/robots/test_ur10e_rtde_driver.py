@@ -26,6 +26,8 @@ from lerobot_focal.robots.ur10e.safety import RobotFaultError  # noqa: E402
 
 from .ur_emulator_support import free_loopback_host, rtde_config, wait_still  # noqa: E402
 
+pytestmark = pytest.mark.subprocess  # the emulated UR controller runs in its own process
+
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
 

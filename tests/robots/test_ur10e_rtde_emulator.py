@@ -23,6 +23,8 @@ from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa
 
 from .ur_emulator_support import free_loopback_host, hard_deadline, wait_still  # noqa: E402
 
+pytestmark = pytest.mark.subprocess  # the emulated UR controller runs in its own process
+
 
 @pytest.fixture(scope="module")
 def emulator():
@@ -65,7 +67,8 @@ def test_control_interface_uploads_its_script_and_reports_it_running(emulator, c
     assert status["script_uploads"][-1] == "def rtde_control():"
     assert status["runtime_state"] == 2
     # The control interface's own output recipe: the 13 variables of a controller before 5.23.
-    assert status["requested_outputs"][-1][:4] == ["timestamp", "robot_status_bits", "safety_status_bits", "runtime_state"]
+    first_four = ["timestamp", "robot_status_bits", "safety_status_bits", "runtime_state"]
+    assert status["requested_outputs"][-1][:4] == first_four
     assert len(status["requested_outputs"][-1]) == 13
     # A loopback address other than 127.0.0.1 makes the client ask whether the robot is in remote control.
     assert ("is in remote control", "true") in [tuple(x) for x in status["dashboard_log"]]

@@ -39,6 +39,8 @@ from .test_ur10e_loop import (  # noqa: E402
 )
 from .ur_emulator_support import free_loopback_host  # noqa: E402
 
+pytestmark = pytest.mark.subprocess  # LeRobot commands against the emulated controller
+
 
 def _robot(host: str) -> list[str]:
     return [

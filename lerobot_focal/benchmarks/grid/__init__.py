@@ -3,7 +3,8 @@
 Modules, one job each:
 
 * ``presets``  — the CPU and paper scales (steps, evaluation cadence, network size, observations);
-* ``methods``  — every method of the comparison as `lerobot-train` arguments (focal, its ablations, diffusion, DP w. FCO);
+* ``methods``  — every method of the comparison as `lerobot-train` arguments (focal, its ablations, diffusion,
+  DP w. FCO);
 * ``datasets`` — expert demonstrations per task (training and held-out), made once and shared by all runs;
 * ``run``      — one run: train with periodic evaluation, then the checkpoint metrics; returns one result record;
 * ``processes``— the runs' child processes (collection, lerobot-train, lerobot-eval), stoppable as one;

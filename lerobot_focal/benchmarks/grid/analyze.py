@@ -108,7 +108,9 @@ def analyze(checkpoint: Path, heldout_root: Path, heldout_repo: str, device: str
         "compounding_error": float(curve.mean()),
         "compounding_curve": [round(float(x), 6) for x in curve],
         "ts_score": ts_score(expert, predicted),
-        "heldout_action_rmse": float(np.sqrt(np.mean([((p - e) ** 2).mean() for p, e in zip(predicted, expert, strict=True)]))),
+        "heldout_action_rmse": float(
+            np.sqrt(np.mean([((p - e) ** 2).mean() for p, e in zip(predicted, expert, strict=True)]))
+        ),
         "nfe": nfe,
         "latency_ms": 1000 * statistics.median(timings),
         "n_params": sum(p.numel() for p in policy.parameters() if p.requires_grad),

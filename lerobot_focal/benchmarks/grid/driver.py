@@ -33,7 +33,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = doc_parser(__doc__, "lerobot-focal-bench grid")
     p.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     p.add_argument("--tasks", default=DEV_TASKS,
-                   help="MetaWorld v3 tasks and/or groups (easy, medium, hard, very_hard); default: the development set")
+                   help="MetaWorld v3 tasks and/or groups (easy, medium, hard, very_hard); "
+                        "default: the development set")
     p.add_argument("--methods", default="core",
                    help="comma-separated methods, 'core', 'all' or 'plateau'; '|' separates phases: every run of a "
                         "phase comes before the next phase's (default: core)")

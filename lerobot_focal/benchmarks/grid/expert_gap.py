@@ -1,6 +1,7 @@
 """Where do a grid run's failures leave the demonstrator? On-policy disagreement with MetaWorld's scripted expert.
 
-    python -m lerobot_focal.benchmarks.grid.expert_gap --out docs/benchmarks/grid_cpu_plateau --tasks basketball --seeds 0
+    python -m lerobot_focal.benchmarks.grid.expert_gap --out docs/benchmarks/grid_cpu_plateau \
+        --tasks basketball --seeds 0
 
 Success rates say how often a policy fails, not where. This rolls out a finished run's final checkpoint through
 LeRobot's own ``rollout`` (what ``lerobot-eval`` runs: the checkpoint's processors and the env config it was
@@ -40,7 +41,9 @@ WINDOW = 25  # steps per row of the gap table
 DIMS = ("x", "y", "z", "gripper")
 
 
-def measure(checkpoint: Path, episodes: int, first_seed: int, metrics_path: Path, demo_stats: Path | None = None) -> dict:
+def measure(
+    checkpoint: Path, episodes: int, first_seed: int, metrics_path: Path, demo_stats: Path | None = None
+) -> dict:
     """Roll the checkpoint out for ``episodes`` episodes with the expert's action recorded at every visited state.
 
     ``demo_stats``: the training dataset's ``meta/stats.json``; with it, each episode's placement is checked
@@ -89,7 +92,8 @@ def measure(checkpoint: Path, episodes: int, first_seed: int, metrics_path: Path
     if demo_stats is not None and demo_stats.exists():
         stats = json.loads(demo_stats.read_text()).get("observation.environment_state")
         if stats is not None:
-            out["placement"] = placement_split(start_obs[0], np.asarray(stats["min"]), np.asarray(stats["max"]), success)
+            low, high = np.asarray(stats["min"]), np.asarray(stats["max"])
+            out["placement"] = placement_split(start_obs[0], low, high, success)
     return out
 
 
@@ -129,8 +133,8 @@ def render(done: dict[str, dict]) -> str:
           "[−1, 1]; \"never held\" = MetaWorld's `grasp_success` was never set. Its episodes are its own (20 by "
           "default), so its success counts scatter around the grid's fresh-episode number.", ""]
     md += ["## Summed over seeds", "",
-           "| task · method | episodes that succeed | failures that never held the object | success, placement inside the "
-           "demos' range | success, placement outside it in ≥ 1 coordinate |", "|---|---|---|---|---|"]
+           "| task · method | episodes that succeed | failures that never held the object | success, placement "
+           "inside the demos' range | success, placement outside it in ≥ 1 coordinate |", "|---|---|---|---|---|"]
     for run, v in sorted(task_totals(done).items()):
         cells = [f"{a} / {b}" if (a, b) != (None, None) else "–"
                  for a, b in (v.get(k, (None, None)) for k in ("success", "never_held", "inside", "outside"))]
@@ -152,7 +156,10 @@ def render(done: dict[str, dict]) -> str:
             cells = []
             for name in ("success", "failure"):
                 row = by_start[start].get(name)
-                cells.append("–" if row is None else f"({row['episodes']}) " + " · ".join(f"{g:.2f}" for g in row["gap"]))
+                if row is None:
+                    cells.append("–")
+                else:
+                    cells.append(f"({row['episodes']}) " + " · ".join(f"{g:.2f}" for g in row["gap"]))
             md.append(f"| {start}-{start + WINDOW - 1} | {cells[0]} | {cells[1]} |")
         md.append("")
     return "\n".join(md)

@@ -90,8 +90,8 @@ def render(summary: dict) -> str:
              "Success in %. top-k: the run's periodic evaluations (fresh placements at each: the paper's estimator, "
              "or the same ones each time: fixed, as the preset says); fresh: the final checkpoint on its fresh "
              "episodes. Written by `python -m lerobot_focal.benchmarks.grid.lr_sweep` (docstring: how to rerun).", "",
-             "| method | lr | top-k | last evaluation | fresh (episodes) | curve (every evaluation) | latency ms/chunk | "
-             "NFE | s/step | wall min |",
+             "| method | lr | top-k | last evaluation | fresh (episodes) | curve (every evaluation) "
+             "| latency ms/chunk | NFE | s/step | wall min |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in summary["runs"]:
         if r["status"] != "done":

@@ -146,7 +146,8 @@ PRESETS: dict[str, GridPreset] = {
         act_width=(128, 800),  # ACT shrunk like the U-Net (methods._act_inputs)
         notes=(
             "CPU preset (scaled down from the paper): 400 steps at batch 64 instead of ~47k at 128; 10 evaluation "
-            "episodes every 80 steps instead of 20 (5 evaluations, so top-5 is their mean); U-Net 32/64/128 instead of 512/1024/2048; low-dimensional "
+            "episodes every 80 steps instead of 20 (5 evaluations, so top-5 is their mean); U-Net 32/64/128 "
+            "instead of 512/1024/2048; low-dimensional "
             "observations (9-d state + MetaWorld's 39-d object-pose observation) for every method instead of "
             "point clouds; seeds 0, 1."
         ),

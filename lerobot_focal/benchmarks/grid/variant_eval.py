@@ -102,7 +102,8 @@ def render(name: str, done: dict[str, dict]) -> str:
           f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} | ATV, grid | ATV, variant |",
           "|---|---|---|---|---|---|"]
     md += [f"| {k.replace('|', ' · ')} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % "
-           f"| {done[k]['variant'] * 100:.0f} % | {_atv(done[k].get('atv_grid'))} | {_atv(done[k].get('atv_variant'))} |"
+           f"| {done[k]['variant'] * 100:.0f} % | {_atv(done[k].get('atv_grid'))} "
+           f"| {_atv(done[k].get('atv_variant'))} |"
            for k in keys]
     d = paired_difference([done[k]["variant"] for k in keys], [done[k]["grid"] for k in keys])
     if d["n"]:

@@ -75,7 +75,9 @@ class DiffusionFcoPolicy(DiffusionPolicy):
         super().__init__(config, **kwargs)
         # Both specs act on pre-sliced windows ("macro" = the whole tensor passed in).
         self._time_spec = ObjectiveSpec(time_window="macro", time_weight=config.fco_time_weight, regularizer="none")
-        self._freq_spec = ObjectiveSpec(time_weight=0.0, regularizer="freq", freq_window="macro", freq_weight=config.fco_lambda)
+        self._freq_spec = ObjectiveSpec(
+            time_weight=0.0, regularizer="freq", freq_window="macro", freq_weight=config.fco_lambda
+        )
 
     def _alpha_bar(self, timesteps: Tensor) -> Tensor:
         """ᾱ_t of the training scheduler for each sample, shape (B,), float32."""

@@ -103,7 +103,8 @@ class UR10eConfig(RobotConfig):
                          why="It is a fraction of the UR10e's maximum joint speeds.")
         require_in_range("servo_lookahead_s", self.servo_lookahead_s, *SERVO_LOOKAHEAD_RANGE_S,
                          why="That is the range URScript's servoL accepts.")
-        require_in_range("servo_gain", self.servo_gain, *SERVO_GAIN_RANGE, why="That is the range URScript's servoL accepts.")
+        require_in_range("servo_gain", self.servo_gain, *SERVO_GAIN_RANGE,
+                         why="That is the range URScript's servoL accepts.")
         if tuple(self.sim_camera_pos) == tuple(self.sim_camera_lookat):
             raise ValueError(f"sim_camera_pos and sim_camera_lookat are the same point {tuple(self.sim_camera_pos)}.")
         for name, (lo, hi) in {"safety.workspace": (self.safety.workspace_min, self.safety.workspace_max),

@@ -51,8 +51,8 @@ CMD_STOPJ = 34
 CMD_STOP_SCRIPT = 255
 COMMAND_NAMES = {
     CMD_CLEAR: "clear", CMD_MOVEJ: "moveJ", CMD_MOVEL: "moveL", CMD_SPEEDJ: "speedJ", CMD_SPEEDL: "speedL",
-    CMD_SERVOJ: "servoJ", CMD_SET_TCP: "setTcp", CMD_SPEED_STOP: "speedStop", CMD_SERVO_STOP: "servoStop", CMD_SERVOL: "servoL",
-    CMD_PROTECTIVE_STOP: "triggerProtectiveStop", CMD_STOPL: "stopL", CMD_STOPJ: "stopJ",
+    CMD_SERVOJ: "servoJ", CMD_SET_TCP: "setTcp", CMD_SPEED_STOP: "speedStop", CMD_SERVO_STOP: "servoStop",
+    CMD_SERVOL: "servoL", CMD_PROTECTIVE_STOP: "triggerProtectiveStop", CMD_STOPL: "stopL", CMD_STOPJ: "stopJ",
     CMD_STOP_SCRIPT: "stopScript",
 }  # fmt: skip
 REALTIME_COMMANDS = frozenset({CMD_SPEEDJ, CMD_SPEEDL, CMD_SERVOJ, CMD_SERVOL})

@@ -89,7 +89,9 @@ class _TcpServer:
             with self._lock:
                 self._conns.add(conn)
                 self.connections_total += 1
-            threading.Thread(target=self._serve_and_close, args=(conn,), name=f"ur-{self.name}-conn", daemon=True).start()
+            threading.Thread(
+                target=self._serve_and_close, args=(conn,), name=f"ur-{self.name}-conn", daemon=True
+            ).start()
 
     def _serve_and_close(self, conn: socket.socket) -> None:
         try:

@@ -342,9 +342,13 @@ class RtdeBackend:
         if s.snapshot.values.get("protective_stopped"):
             reply = dash.unlock_protective_stop(timeout_s)
             if not reply.startswith(PROTECTIVE_STOP_RELEASED):
-                raise RobotFaultError(f"UR10e (rtde): the protective stop was not unlocked within {timeout_s:.0f} s: {reply!r}")
+                raise RobotFaultError(
+                    f"UR10e (rtde): the protective stop was not unlocked within {timeout_s:.0f} s: {reply!r}"
+                )
             dash.request("close safety popup")
-            if not s.wait_for(lambda v: not v.get("protective_stopped"), timeout_s=max(0.1, deadline - time.monotonic())):
+            released = s.wait_for(lambda v: not v.get("protective_stopped"),
+                                  timeout_s=max(0.1, deadline - time.monotonic()))
+            if not released:
                 raise RobotFaultError("UR10e (rtde): the controller still reports a protective stop after the unlock.")
         if not _script_running(s.snapshot.values):
             if int(s.snapshot.values.get("runtime_state", 1)) == 4:  # paused: end it so the script can be uploaded

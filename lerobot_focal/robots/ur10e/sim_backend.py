@@ -115,7 +115,9 @@ class SimBackend:
         self._camera = RayCastCamera(
             self.model, self.config.sim_camera_name, self.config.sim_camera_width, self.config.sim_camera_height
         )
-        self._max_joint_step = np.array(JOINT_MAX_SPEED) * self.config.sim_joint_speed_fraction * self.model.opt.timestep
+        self._max_joint_step = (
+            np.array(JOINT_MAX_SPEED) * self.config.sim_joint_speed_fraction * self.model.opt.timestep
+        )
         self.data.qpos[self._arm_qadr] = _HOME_Q
         self.data.ctrl[:6] = _HOME_Q
         self._gripper_des = 0.0

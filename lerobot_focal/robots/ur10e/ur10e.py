@@ -17,7 +17,8 @@ clipping with counters) and kicks the :class:`.safety.Watchdog`; `send_action` r
 really sent, in the same keys.
 
 Observations: ``<joint>.pos`` (rad), ``ee_x.pos .. ee_yaw.pos`` (measured TCP pose, same names and convention
-as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W, 3) uint8 and ``<camera>_depth`` (H, W, 1) uint16 mm.
+as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W, 3) uint8 and
+``<camera>_depth`` (H, W, 1) uint16 mm.
 
 Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
 extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
@@ -291,7 +292,9 @@ class UR10e(Robot):
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
-            raise self._refuse(f"UR10e action {key!r} must be a number, got {type(value).__name__} {value!r}.") from None
+            raise self._refuse(
+                f"UR10e action {key!r} must be a number, got {type(value).__name__} {value!r}."
+            ) from None
         if arr.size != 1:
             raise self._refuse(
                 f"UR10e action {key!r} must be one number, got an array of shape {arr.shape}; send one value per "

@@ -111,6 +111,7 @@ class FocalGamepadConfig(TeleoperatorConfig):
                          why="Triggers read 0 at rest and 1 fully pressed.")
         if self.on_disconnect not in ("raise", "zero"):
             raise ValueError(f"on_disconnect must be 'raise' or 'zero', got {self.on_disconnect!r}")
-        negative = {f.name: getattr(self.mapping, f.name) for f in fields(self.mapping) if getattr(self.mapping, f.name) < 0}
+        indices = {f.name: getattr(self.mapping, f.name) for f in fields(self.mapping)}
+        negative = {name: index for name, index in indices.items() if index < 0}
         if negative:
             raise ValueError(f"mapping indices are SDL axis/button/hat numbers, ≥ 0; got {negative}")
