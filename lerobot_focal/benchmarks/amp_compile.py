@@ -42,9 +42,10 @@ VARIANTS = ("eager", "amp", "compile", "compile+amp")
 def load_policy(checkpoint: Path | None, down_dims: tuple[int, ...], device: str):
     if checkpoint is None:
         return build_focal(down_dims, device).eval()
-    import lerobot_policy_focal  # noqa: F401  (registers focal, as every LeRobot CLI does)
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class
+
+    import lerobot_policy_focal  # noqa: F401  (registers focal, as every LeRobot CLI does)
 
     cfg = PreTrainedConfig.from_pretrained(checkpoint)
     cfg.device = device

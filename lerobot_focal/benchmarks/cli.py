@@ -4,7 +4,8 @@
     lerobot-focal-bench data  [--root DATASET] ...   (stock vs fast dataset reader inside lerobot-train)
     lerobot-focal-bench grid  --preset cpu|paper --tasks ... --methods ... --out DIR   (the paper's protocol)
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
-    lerobot-focal-bench rescore --out DIR --work WORK   (a grid's final checkpoints on 15 x 20 fresh episodes: top-5 of blocks)
+    lerobot-focal-bench rescore --out DIR --work WORK   (a grid's final checkpoints on 15 x 20 fresh episodes:
+                                                        top-5 of blocks)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
@@ -22,7 +23,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from lerobot_focal.console import doc_parser
-
 
 # Subcommands that parse their own arguments: command -> module with main(argv).
 _DELEGATED = {
@@ -61,8 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("grid", add_help=False, help="(task x method x seed) through lerobot-train, the paper's protocol "
                                                  "(see `lerobot-focal-bench grid --help`)")
     sub.add_parser("report", add_help=False, help="render a grid's report (see `lerobot-focal-bench report --help`)")
-    sub.add_parser("rescore", add_help=False, help="score a finished grid's final checkpoints the paper's way: top-5 "
-                                                   "of 15 blocks of fresh episodes (see `lerobot-focal-bench rescore --help`)")
+    sub.add_parser("rescore", add_help=False,
+                   help="score a finished grid's final checkpoints the paper's way: top-5 of 15 blocks of fresh "
+                        "episodes (see `lerobot-focal-bench rescore --help`)")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "

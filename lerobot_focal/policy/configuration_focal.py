@@ -382,7 +382,8 @@ class FocalConfig(PreTrainedConfig):
         require_choice("scheduler_name", self.scheduler_name, [t.value for t in SchedulerType])
 
     def _validate_network_and_inputs(self) -> None:
-        require_non_negative(drop_n_last_frames=self.drop_n_last_frames, ema_update_after_step=self.ema_update_after_step)
+        require_non_negative(drop_n_last_frames=self.drop_n_last_frames,
+                             ema_update_after_step=self.ema_update_after_step)
         require_positive(
             pointcloud_feature_dim=self.pointcloud_feature_dim, state_feature_dim=self.state_feature_dim,
             spatial_softmax_num_keypoints=self.spatial_softmax_num_keypoints, time_scale=self.time_scale,
@@ -605,7 +606,9 @@ class FocalConfig(PreTrainedConfig):
                 raise ValueError(f"use_pointcloud_color=true needs a (P, 6) point cloud; '{pc}' has shape {shape}.")
         for key in (self.used_state_key, self.used_env_state_key):
             if key and len(self.input_features[key].shape) != 1:
-                raise ValueError(f"'{key}' must be a flat vector (D,); got shape {tuple(self.input_features[key].shape)}.")
+                raise ValueError(
+                    f"'{key}' must be a flat vector (D,); got shape {tuple(self.input_features[key].shape)}."
+                )
         images = self.used_image_keys
         if images:
             first = tuple(self.input_features[images[0]].shape)

@@ -347,7 +347,8 @@ class FocalPolicy(PreTrainedPolicy):
     def _nonfinite_output_message(self, net: nn.Module, x: Tensor) -> str:
         """Why the policy produced NaN/inf actions from finite observations (the inputs are checked before)."""
         bad_weights = [name for name, p in net.named_parameters() if not bool(torch.isfinite(p).all())]
-        source = self.checkpoint_file or getattr(self.config, "pretrained_path", None) or "weights not loaded from a file"
+        source = (self.checkpoint_file or getattr(self.config, "pretrained_path", None)
+                  or "weights not loaded from a file")
         which = "EMA" if net is self.ema_model else "online"
         if bad_weights:
             shown = ", ".join(bad_weights[:3]) + (f" and {len(bad_weights) - 3} more" if len(bad_weights) > 3 else "")

@@ -66,7 +66,8 @@ def test_chunks_switch_delay_steps_after_their_observation(delay, guided):
     for k in range(1, 6):
         expected += [100 * k + delay + i for i in range(S)]
     np.testing.assert_array_equal(executed, expected[:20])
-    np.testing.assert_array_equal(ep.chunk_ids, [0] * (S + delay) + [k for k in range(1, 6) for _ in range(S)][: 20 - S - delay])
+    later_chunks = [k for k in range(1, 6) for _ in range(S)][: 20 - S - delay]
+    np.testing.assert_array_equal(ep.chunk_ids, [0] * (S + delay) + later_chunks)
     assert len(ep.latencies_s) == 5 and ep.success
     for k, call in enumerate(policy.calls):
         # Observations t-1, t at the chunk's step t = k·S (the first one twice).

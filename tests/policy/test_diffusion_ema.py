@@ -29,8 +29,7 @@ from safetensors.torch import load_file
 
 from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.policy.diffusion_ema import DiffusionEmaConfig, DiffusionEmaPolicy
-from tests.policy.test_diffusion_fco import ACT, HORIZON, N_ACT, _batch, _write_dataset
-from tests.policy.test_diffusion_fco import _config as _fco_config
+from tests.policy.test_diffusion_fco import ACT, HORIZON, N_ACT, _batch, _config as _fco_config, _write_dataset
 
 BIN = Path(sys.executable).parent
 

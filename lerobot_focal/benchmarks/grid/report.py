@@ -130,7 +130,9 @@ def _paired_cells(records: list[dict], tasks: list[str], a: str, b: str, keys: l
     return cells
 
 
-def _paired_table(records: list[dict], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]) -> list[str]:
+def _paired_table(
+    records: list[dict], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]
+) -> list[str]:
     if "focal" not in methods:
         return []
     header = "| " + " | ".join(name for _, name in keys) + " |"
@@ -221,7 +223,9 @@ def _goals(records: list[dict], tasks: list[str], methods: list[str], label: dic
     return lines
 
 
-def _estimators_table(records: list[dict], tasks: list[str], methods: list[str], label: dict, preset: dict) -> list[str]:
+def _estimators_table(
+    records: list[dict], tasks: list[str], methods: list[str], label: dict, preset: dict
+) -> list[str]:
     """One cell per method and task with the three numbers side by side (means over seeds, in %)."""
     k = preset["top_k"]
 
@@ -387,8 +391,8 @@ def write_report(out_dir: Path) -> Path:
                 "Mean distance between integrated xyz actions of policy and expert along held-out episodes "
                 "(positions start at the origin), recorded observations in.")
     md += table("TS score (↓)", "ts_score", 1, 4,
-                "TS score = |TS_expert − TS_policy|, TS = mean ‖a_{t+1} − 2a_t + a_{t−1}‖ (CoLA's exact TS formula is not "
-                "available to us; this is our stand-in of the same kind).")
+                "TS score = |TS_expert − TS_policy|, TS = mean ‖a_{t+1} − 2a_t + a_{t−1}‖ (CoLA's exact TS formula "
+                "is not available to us; this is our stand-in of the same kind).")
     md += _given_table(methods, label, preset, agg)
     md += ["## Cost per run", "", "| Method | NFE per chunk | latency per chunk (ms, batch 1) | update (s/step) | "
            "wall time per run (min) |", "|---|---|---|---|---|"]
