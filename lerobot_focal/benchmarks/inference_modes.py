@@ -24,7 +24,8 @@ Per method and delay: success rate; action total variation inside chunks (mean |
 consecutive actions of the same chunk) and at chunk boundaries (the same over the switch from one chunk to the
 next: the jump); the paper's ATV over the whole episode; the wall time of `predict_action_chunk` (one network
 evaluation per chunk, guided or not). MetaWorld actions are its [-1, 1] commands as clipped by the env; the
-twin's are its 7-d command (m/s, rad/s, gripper fraction).
+twin's are its TCP velocities (m/s; the rotation rates and the gripper, constant in the demonstrations, are
+sent at their constant values).
 
 LeRobot's RTC supports only policies that declare it (pi0, pi05, smolvla, groot, evo1, molmoact2, and now
 focal); LeRobot's `diffusion` does not (its `supports_rtc()` is PreTrainedPolicy's False, and `lerobot-rollout
@@ -268,8 +269,15 @@ class TwinPolicyEnv:
         return self.observation(self.twin.reset_raw(seed))
 
     def step(self, action) -> tuple[dict, bool]:
-        self.sent = action[0].cpu().numpy().astype(np.float64)
-        raw = self.twin.step_raw(dict(zip(self.twin.action_keys, map(float, self.sent), strict=True)))
+        """The task's command is the TCP velocity: the policy's x, y, z velocities are sent; the dimensions the
+        demonstrations hold constant (rotation rates 0, gripper open) are sent at that constant, not the
+        policy's output there (a one-step flow's residual noise on dimensions the data never moved, ±0.1 rad/s
+        and ±0.5 of the gripper range after 1000 steps, which the twin would execute as wrist rotations)."""
+        command = action[0].cpu().numpy().astype(np.float64)
+        self.sent = command[:3]
+        held = {**{k: 0.0 for k in self.twin.action_keys}, "gripper.pos": 1.0}
+        held.update({k: float(v) for k, v in zip(self.twin.action_keys[:3], self.sent, strict=True)})
+        raw = self.twin.step_raw(held)
         return self.observation(raw), False
 
     def success(self) -> bool:
@@ -484,7 +492,8 @@ def main(argv: list[str] | None = None) -> int:
                 "title": "UR-10e twin, reach above the cube",
                 "scale": f"{args.twin_demos} expert demos (proportional TCP controller, 4 s at {TWIN_FPS} Hz), "
                          f"{args.twin_train_steps} training steps at batch 64, {args.twin_episodes} evaluation "
-                         f"episodes per cell (start offsets from seeds 100…, in real time), state only; success: "
+                         f"episodes per cell (start offsets from seeds 100…, in real time), state only, the policy's x, y, z TCP velocities "
+                         f"sent (rotation rates and gripper held at the demonstrations' constants); success: "
                          f"TCP within {TWIN_SUCCESS_M * 100:.0f} cm of the goal after 4 s.",
                 "results": evaluate(lambda cfg: TwinPolicyEnv(twin, cfg), ckpts, args.methods, args.delays,
                                     [100 + i for i in range(args.twin_episodes)], "twin"),
