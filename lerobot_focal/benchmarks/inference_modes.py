@@ -37,7 +37,6 @@ Results: ``inference_modes.json``, ``.md`` and ``.png`` under ``--out``.
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import shutil
@@ -255,10 +254,9 @@ class TwinPolicyEnv:
         self.sent = None
 
     def observation(self, raw: dict) -> dict:
+        import torch
         from lerobot.policies.utils import prepare_observation_for_inference
         from lerobot.utils.feature_utils import build_dataset_frame
-
-        import torch
 
         frame = build_dataset_frame(self.features, raw, prefix="observation")
         obs = prepare_observation_for_inference(frame, torch.device("cpu"), TWIN_TASK, self.twin.robot.name)
@@ -409,7 +407,7 @@ def write_report(result: dict, out: Path) -> None:
         "RTC is focal's synchronous execution.",
         "",
     ]
-    for env_name, block in result["environments"].items():
+    for block in result["environments"].values():
         lines += [f"## {block['title']}", "", block["scale"], "",
                   "| method | delay | success | in-chunk TV | jump at chunk boundary | ATV | ms / chunk (p50, p90) |",
                   "|---|---|---|---|---|---|---|"]
@@ -492,9 +490,9 @@ def main(argv: list[str] | None = None) -> int:
                 "title": "UR-10e twin, reach above the cube",
                 "scale": f"{args.twin_demos} expert demos (proportional TCP controller, 4 s at {TWIN_FPS} Hz), "
                          f"{args.twin_train_steps} training steps at batch 64, {args.twin_episodes} evaluation "
-                         f"episodes per cell (start offsets from seeds 100…, in real time), state only, the policy's x, y, z TCP velocities "
-                         f"sent (rotation rates and gripper held at the demonstrations' constants); success: "
-                         f"TCP within {TWIN_SUCCESS_M * 100:.0f} cm of the goal after 4 s.",
+                         f"episodes per cell (start offsets from seeds 100…, in real time), state only, the "
+                         "policy's x, y, z TCP velocities sent (rotation rates and gripper held at the "
+                         f"demonstrations' constants); success: TCP within {TWIN_SUCCESS_M * 100:.0f} cm of the goal after 4 s.",
                 "results": evaluate(lambda cfg: TwinPolicyEnv(twin, cfg), ckpts, args.methods, args.delays,
                                     [100 + i for i in range(args.twin_episodes)], "twin"),
             }

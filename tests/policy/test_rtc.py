@@ -138,7 +138,8 @@ def test_engine_padding_rows_are_not_guided_towards():
     torch.testing.assert_close(guided[0, :3], real, atol=1e-5, rtol=0)
     torch.testing.assert_close(guided[0, 3:], unguided[0, 3:])
     # An all-padding leftover (nothing committed) is the unguided chunk.
-    none = policy.predict_action_chunk(_obs(), noise=_noise(), inference_delay=1, prev_chunk_left_over=torch.zeros(8, D))
+    none = policy.predict_action_chunk(_obs(), noise=_noise(), inference_delay=1,
+                                       prev_chunk_left_over=torch.zeros(8, D))
     assert torch.equal(none, unguided)
 
 
