@@ -492,7 +492,8 @@ def main(argv: list[str] | None = None) -> int:
                          f"{args.twin_train_steps} training steps at batch 64, {args.twin_episodes} evaluation "
                          f"episodes per cell (start offsets from seeds 100…, in real time), state only, the "
                          "policy's x, y, z TCP velocities sent (rotation rates and gripper held at the "
-                         f"demonstrations' constants); success: TCP within {TWIN_SUCCESS_M * 100:.0f} cm of the goal after 4 s.",
+                         f"demonstrations' constants); success: TCP within {TWIN_SUCCESS_M * 100:.0f} cm of "
+                         "the goal after 4 s.",
                 "results": evaluate(lambda cfg: TwinPolicyEnv(twin, cfg), ckpts, args.methods, args.delays,
                                     [100 + i for i in range(args.twin_episodes)], "twin"),
             }
