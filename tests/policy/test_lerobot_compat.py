@@ -60,7 +60,8 @@ def _build_inside_train(policy_config, ema_enable: bool):
 
 def test_two_emas_are_refused_and_one_is_fine():
     policy_config = small_policy().config
-    with pytest.raises(ValueError, match=r"--ema.enable=true.*--policy.use_ema=false --policy.consistency_target=online"):
+    refusal = r"--ema.enable=true.*--policy.use_ema=false --policy.consistency_target=online"
+    with pytest.raises(ValueError, match=refusal):
         _build_inside_train(policy_config, ema_enable=True)
     assert _build_inside_train(policy_config, ema_enable=False).policy is policy_config
     online = small_policy(use_ema=False, consistency_target="online").config
@@ -110,7 +111,8 @@ def test_lerobot_train_with_lerobots_ema_alone_saves_and_loads_its_shadow(tmp_pa
     assert (shadow / "model.safetensors").is_file(), sorted(p.name for p in shadow.parent.iterdir())
     from safetensors.torch import load_file
 
-    live, ema = load_file(shadow.parent / "pretrained_model" / "model.safetensors"), load_file(shadow / "model.safetensors")
+    live = load_file(shadow.parent / "pretrained_model" / "model.safetensors")
+    ema = load_file(shadow / "model.safetensors")
     assert live.keys() == ema.keys() and any(not torch.equal(live[k], ema[k]) for k in live)  # a shadow, not a copy
 
     from lerobot.configs.policies import PreTrainedConfig

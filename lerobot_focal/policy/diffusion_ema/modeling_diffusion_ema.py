@@ -19,9 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from torch import Tensor
-
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+from torch import Tensor
 
 from lerobot_focal.policy.diffusion_ema.configuration_diffusion_ema import DiffusionEmaConfig
 from lerobot_focal.policy.ema import ema_decay, ema_update_, frozen_copy
