@@ -26,13 +26,6 @@ FAST_TIER_BUDGET_S = float(os.environ.get("LEROBOT_FOCAL_FAST_TIER_BUDGET_S", "1
 #: Markers that keep a test out of the fast tier.
 NOT_FAST = ("slow", "subprocess", "heavy")
 
-#: Files whose tests start processes but do not say so yet: their authors' work in progress, marked from here
-#: until each file carries `pytestmark = pytest.mark.subprocess` itself (then its entry goes).
-UNMARKED_SUBPROCESS_FILES = (
-    "tests/deploy/test_async_inference.py",
-    "tests/policy/test_rtc_rollout.py",
-)
-
 _MARKERS = (
     "fast: added to every test not marked slow, subprocess or heavy; `pytest -m fast` is the quick tier",
     "subprocess: starts a process (a LeRobot command, a probe interpreter, a server): default suite, not the fast tier",
@@ -66,10 +59,7 @@ def _selects_fast_tier(markexpr: str) -> bool:
 
 @pytest.hookimpl(tryfirst=True)  # before pytest's own -m selection reads the markers
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    root = config.rootpath
     for item in items:
-        if item.path.relative_to(root).as_posix() in UNMARKED_SUBPROCESS_FILES:
-            item.add_marker(pytest.mark.subprocess)
         if not any(item.get_closest_marker(name) for name in NOT_FAST):
             item.add_marker(pytest.mark.fast)
 

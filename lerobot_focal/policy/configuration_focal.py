@@ -31,6 +31,7 @@ from lerobot_focal.config_errors import (
     require_positive,
 )
 from lerobot_focal.constants import OBS_POINTCLOUD
+from lerobot_focal.policy.ema import check_ema_settings
 from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
@@ -361,11 +362,7 @@ class FocalConfig(PreTrainedConfig):
                 f"inference_noise_scale must be a finite number ≥ 0, got {self.inference_noise_scale} (1 samples the "
                 "flow's own prior; 0 starts every chunk from M_0 = 0, one deterministic trajectory per observation)."
             )
-        if not 0.0 <= self.ema_min_decay <= self.ema_max_decay < 1.0 or self.ema_max_decay == 0.0:
-            raise FocalConfigError(
-                f"EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1 with ema_max_decay > 0 (got "
-                f"{self.ema_min_decay}, {self.ema_max_decay}; DP3's are 0 and 0.9999)."
-            )
+        check_ema_settings(self)
         self._validate_network_and_inputs()
         if self.pointcloud_from_depth is not None:
             self._validate_pointcloud_from_depth()
@@ -382,12 +379,11 @@ class FocalConfig(PreTrainedConfig):
         require_choice("scheduler_name", self.scheduler_name, [t.value for t in SchedulerType])
 
     def _validate_network_and_inputs(self) -> None:
-        require_non_negative(drop_n_last_frames=self.drop_n_last_frames,
-                             ema_update_after_step=self.ema_update_after_step)
+        require_non_negative(drop_n_last_frames=self.drop_n_last_frames)
         require_positive(
             pointcloud_feature_dim=self.pointcloud_feature_dim, state_feature_dim=self.state_feature_dim,
             spatial_softmax_num_keypoints=self.spatial_softmax_num_keypoints, time_scale=self.time_scale,
-            pointcloud_num_points=self.pointcloud_num_points, ema_power=self.ema_power,
+            pointcloud_num_points=self.pointcloud_num_points,
         )
         require_non_negative(pointcloud_voxel_size=self.pointcloud_voxel_size,
                              pointcloud_min_depth=self.pointcloud_min_depth)

@@ -13,6 +13,8 @@ import copy
 import torch
 from torch import nn
 
+from lerobot_focal.config_errors import require_non_negative, require_positive
+
 
 def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, update_after_step: int = 0) -> float:
     """DP3's EMA warm-up: 0 for the first updates, then 1 − (1 + s)^−power clipped to [min, max]."""
@@ -20,6 +22,19 @@ def ema_decay(step: int, *, power: float, min_decay: float, max_decay: float, up
     if s <= 0:
         return 0.0
     return max(min_decay, min(1.0 - (1.0 + s) ** -power, max_decay))
+
+
+def check_ema_settings(config) -> None:
+    """The EMA fields both policies' configs share (ema_power, ema_min/max_decay, ema_update_after_step); a
+    ValueError names the field and the valid range."""
+    require_positive(ema_power=config.ema_power)
+    require_non_negative(ema_update_after_step=config.ema_update_after_step)
+    lo, hi = config.ema_min_decay, config.ema_max_decay
+    if not (0.0 <= lo <= hi < 1.0 and hi > 0.0):  # also refuses NaN
+        raise ValueError(
+            f"EMA decays must satisfy 0 ≤ ema_min_decay ≤ ema_max_decay < 1 with ema_max_decay > 0 (got {lo}, {hi}; "
+            "DP3's are 0 and 0.9999)."
+        )
 
 
 def frozen_copy(module: nn.Module) -> nn.Module:

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 import torch
 
+pytestmark = pytest.mark.subprocess  # the policy server, LeRobot's robot_client, lerobot-train
 pytest.importorskip("grpc", reason="the async extra: pip install -e '.[async]'")
 pytest.importorskip("mujoco")
 

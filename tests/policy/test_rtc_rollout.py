@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.subprocess  # lerobot-record, lerobot-train and lerobot-rollout
 pytest.importorskip("mujoco")
 
 BIN = Path(sys.executable).parent

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
-from lerobot_focal.config_errors import reports_config_errors, require_in_range, require_non_negative, require_positive
+from lerobot_focal.config_errors import reports_config_errors
+from lerobot_focal.policy.ema import check_ema_settings
 
 
 @PreTrainedConfig.register_subclass("diffusion_ema")
@@ -47,11 +48,6 @@ class DiffusionEmaConfig(DiffusionConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        require_positive(ema_power=self.ema_power)
-        require_non_negative(ema_update_after_step=self.ema_update_after_step)
-        require_in_range("ema_max_decay", self.ema_max_decay, 0.0, 1.0, low_open=True, high_open=True,
-                         why="DP3's is 0.9999.")
-        require_in_range("ema_min_decay", self.ema_min_decay, 0.0, self.ema_max_decay,
-                         why="It must lie between 0 and ema_max_decay.")
+        check_ema_settings(self)
         if self.use_ema_for_inference and not self.use_ema:
             raise ValueError("use_ema_for_inference=true needs use_ema=true (or set use_ema_for_inference=false).")
