@@ -29,7 +29,15 @@ from safetensors.torch import load_file
 
 from lerobot_focal.config_errors import ConfigError
 from lerobot_focal.policy.diffusion_ema import DiffusionEmaConfig, DiffusionEmaPolicy
-from tests.policy.test_diffusion_fco import ACT, HORIZON, N_ACT, _batch, _config as _fco_config, _write_dataset
+from tests.policy.test_diffusion_fco import (
+    ACT,
+    HORIZON,
+    N_ACT,
+    _batch,
+    _config as _fco_config,
+    _write_dataset,
+    assert_same_first_action,
+)
 
 BIN = Path(sys.executable).parent
 
@@ -180,13 +188,4 @@ def test_lerobot_train_diffusion_ema_checkpoint_holds_the_ema_and_reloads(traine
         for k, v in policy.ema_diffusion.state_dict().items():
             torch.testing.assert_close(v, ema[k])
     pre, post = make_pre_post_processors(cfg, pretrained_path=str(model_dir))
-    obs = {k: v[None] for k, v in ds[10].items() if k.startswith("observation.")}
-    actions = []
-    for policy in (via_factory, via_base):
-        policy.eval()
-        policy.reset()
-        torch.manual_seed(0)
-        with torch.no_grad():
-            actions.append(post(policy.select_action(pre(dict(obs)))))
-    assert actions[0].shape == (1, ACT) and torch.isfinite(actions[0]).all()
-    torch.testing.assert_close(actions[0], actions[1])
+    assert_same_first_action((via_factory, via_base), pre, post, ds[10])

@@ -297,14 +297,19 @@ def test_lerobot_train_diffusion_fco_checkpoint_reloads_and_acts(trained):
     assert via_factory.diffusion.num_inference_steps == 4
     pre, post = make_pre_post_processors(cfg, pretrained_path=str(model_dir))
 
-    frame = ds[10]
+    assert_same_first_action((via_factory, via_base), pre, post, ds[10])
+
+
+def assert_same_first_action(policies, pre, post, frame: dict) -> None:
+    """Each policy's first action on `frame`'s observation, same noise seed: finite, (1, ACT) and equal."""
     obs = {k: v[None] for k, v in frame.items() if k.startswith("observation.")}
     actions = []
-    for policy in (via_factory, via_base):
+    for policy in policies:
         policy.eval()
         policy.reset()
         torch.manual_seed(0)
         with torch.no_grad():
             actions.append(post(policy.select_action(pre(dict(obs)))))
     assert actions[0].shape == (1, ACT) and torch.isfinite(actions[0]).all()
-    torch.testing.assert_close(actions[0], actions[1])
+    for other in actions[1:]:
+        torch.testing.assert_close(actions[0], other)
