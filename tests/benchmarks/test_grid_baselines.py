@@ -25,7 +25,8 @@ def test_act_is_lerobots_act_with_the_changes_its_docstring_lists():
     assert args[0] == "--policy.type=act"
     assert f"--policy.chunk_size={ACT_CHUNK}" in args and f"--policy.n_action_steps={ACT_CHUNK}" in args
     assert "--policy.dim_model=128" in args and "--policy.dim_feedforward=800" in args
-    assert "--policy.optimizer_lr=1e-05" in args  # ACT's authors' rate, not the preset's 1e-3
+    assert "--policy.optimizer_lr=0.0001" in args  # the rate cpu_fair's lr sweep chose, not the preset's 1e-3
+    assert "--policy.optimizer_lr=1e-05" in _args("act", PRESETS["cpu_plateau"])  # elsewhere its authors' rate
     # ACT has no U-Net and no scheduler: LeRobot would refuse those flags.
     assert not any(a.startswith(("--policy.down_dims", "--policy.scheduler")) for a in args)
     assert not any("n_obs_steps" in a for a in args)  # ACT takes one observation step
@@ -75,6 +76,38 @@ def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):
         merged_grid(without_lr, changed, tmp_path)
 
 
+def test_constant_schedule_keeps_the_rate_for_the_methods_that_decay_it(tmp_path):
+    """The plateau probe's schedule: focal and diffusion_ema get LeRobot's constant-with-warm-up schedule (and it
+    builds and holds the rate to the last step), ACT has no schedule flag either way, and the override names the
+    runs' folder so a probe never reuses the grid's runs."""
+    import torch
+
+    from lerobot_focal.benchmarks.grid.methods import given
+    from lerobot_focal.policy.configuration_focal import FocalConfig
+    from lerobot_focal.policy.diffusion_ema import DiffusionEmaConfig
+
+    argv = ["--preset", "cpu_fair", "--tasks", "disassemble", "--methods", "focal,diffusion_ema,act", "--seeds", "0",
+            "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work"), "--schedule", "constant"]
+    specs, grid = build_specs(parse_args(argv))
+    flag = "--policy.scheduler_name=constant_with_warmup"
+    for s in specs:
+        args = METHODS[s.method].train_args(s.preset)
+        assert (flag in args) == (s.method != "act"), s.method
+        assert not any(a.startswith("--policy.scheduler_name") for a in _args(s.method, PRESETS["cpu_fair"]))
+        assert s.run_dir.parts[-4] == "cpu_fair+schedule=constant"
+    assert given("focal", grid["preset"])["schedule"] == "constant, 100 warm-up"
+    for config in (FocalConfig(scheduler_name="constant_with_warmup", scheduler_warmup_steps=10),
+                   DiffusionEmaConfig(scheduler_name="constant_with_warmup", scheduler_warmup_steps=10)):
+        optimizer = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1e-3)
+        scheduler = config.get_scheduler_preset().build(optimizer, num_training_steps=100)
+        rates = []
+        for _ in range(100):
+            optimizer.step()
+            scheduler.step()
+            rates.append(optimizer.param_groups[0]["lr"])
+        assert rates[4] < 1e-3 and rates[20] == rates[-1] == 1e-3, type(config).__name__
+
+
 def test_fair_phases_answer_the_main_question_first():
     phases = [[m.name for m in p] for p in resolve_method_phases("fair")]
     assert phases == [["focal", "diffusion_ema", "act"], ["wo_fco_las"]]
@@ -93,8 +126,8 @@ def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, 
     assert record["latency_ms"] > 0
     cfg = json.loads(next(Path(record["run_dir"]).rglob("pretrained_model/config.json")).read_text())
     assert cfg["type"] == method
-    if method == "act":
-        assert cfg["chunk_size"] == ACT_CHUNK and cfg["dim_model"] == 128 and cfg["optimizer_lr"] == 1e-5
+    if method == "act":  # LeRobot's defaults but the rate the preset's lr sweep chose
+        assert cfg["chunk_size"] == ACT_CHUNK and cfg["dim_model"] == 128 and cfg["optimizer_lr"] == 1e-4
     else:
         assert cfg["use_ema"] is True and cfg["num_inference_steps"] == 10
 

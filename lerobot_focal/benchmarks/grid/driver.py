@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ...console import doc_parser
 from .methods import resolve_method_phases
-from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, capped_seeds
+from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES, capped_seeds
 from .results import ResultsFile
 from .run import RunSpec, resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges
@@ -62,6 +62,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "LeRobot's default) or 'fresh' (new ones at every evaluation and seed, as DP3's runner)")
     p.add_argument("--demos-per-seed", dest="demos_per_seed", default=None, type=_bool,
                    help="override the preset's demos_per_seed (true: every training seed its own demos)")
+    p.add_argument("--schedule", default=None, choices=sorted(SCHEDULES),
+                   help="override the preset's learning-rate schedule after the warm-up: 'cosine' (to zero at the "
+                        "last step) or 'constant' (how the plateau budget is measured); ACT's rate is always constant")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
@@ -91,7 +94,7 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
         steps=args.steps, batch_size=args.batch_size, eval_every=args.eval_every, eval_episodes=args.eval_episodes,
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
         final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
-        periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed,
+        periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed, schedule=args.schedule,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:

@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .presets import GridPreset
+from .presets import SCHEDULES, GridPreset
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,8 @@ class Method:
                 f"--policy.optimizer_lr={lr}",
                 f"--policy.scheduler_warmup_steps={preset.warmup_steps}",
             ]
+            if preset.schedule != "cosine":  # cosine is every such policy type's default
+                common.append(f"--policy.scheduler_name={SCHEDULES[preset.schedule]}")
         common += [f"--policy.device={preset.device}", "--policy.push_to_hub=false"]
         return common + _INPUTS[self.policy_type](preset, self.obs_type_for(preset)) + list(self.extra)
 
@@ -250,12 +252,12 @@ def given(name: str, preset: dict) -> dict[str, str]:
         default = {f.name: f.default for f in fields(FocalConfig)}
         h = int(_flag(args, "chunk_size") or default["chunk_size"])
         n = int(_flag(args, "n_chunks") or default["n_chunks"])
-        schedule = f"cosine, {p.warmup_steps} warm-up"
+        schedule = f"{p.schedule}, {p.warmup_steps} warm-up"
         chunk = f"{h * n} / {h}"
         target = "online" if ONLINE in args else "EMA"
         acts = f"EMA weights; consistency target {target}"
     else:
-        schedule = f"cosine, {p.warmup_steps} warm-up"
+        schedule = f"{p.schedule}, {p.warmup_steps} warm-up"
         chunk = f"{_flag(args, 'horizon')} / {_flag(args, 'n_action_steps')}"
         acts = "EMA weights" if method.policy_type == "diffusion_ema" else "online weights (no EMA)"
     obs = method.obs_type_for(p)
