@@ -33,11 +33,11 @@ def child(inputs: str, steps: int, batch: int) -> dict:
     """Time ``steps`` training steps in this process (whatever its malloc settings) and fingerprint the result."""
     import torch
 
-    from lerobot_focal.benchmarks.train_step import _step_fn, policy_and_batch
+    from lerobot_focal.benchmarks.train_step import policy_and_batch, training_step
 
     torch.set_num_threads(1)
     policy, data = policy_and_batch(inputs, batch)
-    step = _step_fn(policy, policy.config.get_optimizer_preset().build(policy.get_optim_params()), data, 1)
+    step = training_step(policy, policy.config.get_optimizer_preset().build(policy.get_optim_params()), data, 1)
     torch.manual_seed(2)
     for _ in range(2):
         step()

@@ -33,6 +33,7 @@ import json
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -85,7 +86,10 @@ def policy_and_batch(inputs: str, batch: int, down_dims: tuple[int, ...] = (32, 
     return policy, data
 
 
-def _step_fn(policy, optimizer, batch, threads: int):
+def training_step(policy, optimizer, batch, threads: int) -> Callable[[], float]:
+    """One optimizer step of `policy` on `batch` as lerobot-train takes it (clip at 10, zero grads, EMA update),
+    as a callable the benchmarks time; torch runs it on `threads` threads and goes back to one."""
+
     def step() -> float:
         torch.set_num_threads(threads)
         loss, _ = policy.forward(batch)
@@ -117,7 +121,7 @@ def _state_variants(base, data: dict[str, torch.Tensor], batch: int, compile_: b
         if compiled:
             policy.model.velocity_net = torch.compile(policy.model.velocity_net)
             policy.ema_model.velocity_net = torch.compile(policy.ema_model.velocity_net)
-        step = _step_fn(policy, opt_cfg.build(policy.get_optim_params()), {k: v[:b] for k, v in data.items()},
+        step = training_step(policy, opt_cfg.build(policy.get_optim_params()), {k: v[:b] for k, v in data.items()},
                         threads)
         return step, b
 
@@ -146,7 +150,7 @@ def _pointcloud_variants(base, data, agreement_steps: int) -> tuple[dict, dict]:
     losses = {}
     for name, build in builds.items():
         policy = build()
-        step = _step_fn(policy, preset.build(policy.get_optim_params()), data, 1)
+        step = training_step(policy, preset.build(policy.get_optim_params()), data, 1)
         curve = []
         for i in range(agreement_steps):
             torch.manual_seed(100 + i)  # the same noise and flow times for both
@@ -163,7 +167,7 @@ def _pointcloud_variants(base, data, agreement_steps: int) -> tuple[dict, dict]:
     variants = {}
     for name, build in builds.items():
         policy = build()
-        variants[name] = (_step_fn(policy, preset.build(policy.get_optim_params()), data, 1), len(data["action"]))
+        variants[name] = (training_step(policy, preset.build(policy.get_optim_params()), data, 1), len(data["action"]))
     return variants, agreement
 
 

@@ -61,7 +61,7 @@ def test_cpu_fair_is_cpu_plateau_with_the_papers_estimator_and_demos_per_seed():
     differ = {k for k in fair if fair[k] != plateau[k]}
     # and the baselines' own learning rates (the lr sweep's choice, docs/benchmarks/lr_sweep_fair)
     assert differ == {"name", "notes", "periodic_eval", "demos_per_seed", "method_lr"}
-    assert dict(fair["method_lr"]) == {"diffusion_ema": 1e-3}
+    assert dict(fair["method_lr"]) == {"diffusion_ema": 1e-3, "act": 1e-4}
 
 
 def test_overlapping_seed_ranges_are_refused_before_anything_runs(tmp_path):

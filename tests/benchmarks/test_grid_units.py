@@ -429,3 +429,34 @@ def test_tau_profile_pairs_runs_by_task_and_seed_with_geometric_mean_ratios():
     assert "| wo_las / wo_fco_las (2 pairs) | 2.00× | 1.41× |" in paired
     assert "focal / " not in paired  # pairs whose methods were not measured are not shown
     assert "| pick-place · wo_las | 30 |" in md and "| sweep-into · wo_las | – |" in md
+
+
+def test_preset_from_dict_round_trips_and_reads_older_grids(tmp_path):
+    """grid.json's preset rebuilds the very preset (overrides included); a grid recorded before a field existed
+    gets the field's default; a key that is no field is refused by name."""
+    from lerobot_focal.benchmarks.grid.presets import PRESETS, GridPreset
+    from lerobot_focal.benchmarks.grid.specs import specs_of_grid
+
+    for preset in PRESETS.values():
+        stored = json.loads(json.dumps(preset.with_overrides(steps=1000, down_dims=(8, 16)).to_dict()))
+        assert GridPreset.from_dict(stored) == preset.with_overrides(steps=1000, down_dims=(8, 16))
+    older = json.loads(json.dumps(PRESETS["cpu_plateau"].to_dict()))
+    for newer_field in ("schedule", "method_lr", "periodic_eval", "demos_per_seed"):
+        del older[newer_field]
+    assert GridPreset.from_dict(older) == PRESETS["cpu_plateau"]
+    with pytest.raises(ValueError, match="not fields of a grid preset: warmup"):
+        GridPreset.from_dict({**older, "warmup": 3})
+
+    # The tools that revisit a grid see the runs its invocation made: same keys, run folders and data.
+    from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
+
+    out = tmp_path / "out"
+    specs, grid = build_specs(parse_args(["--preset", "cpu_fair", "--tasks", "pick-place,basketball", "--methods",
+                                          "focal,act|wo_fco_las", "--seeds", "2,0", "--steps", "1000", "--out",
+                                          str(out), "--work", str(tmp_path / "w")]))
+    out.mkdir()
+    (out / "grid.json").write_text(json.dumps(grid, default=str))
+    rebuilt = specs_of_grid(out, tmp_path / "w")
+    assert sorted(rebuilt) == sorted(s.key for s in specs)
+    for s in specs:
+        assert (rebuilt[s.key].run_dir, rebuilt[s.key].data, rebuilt[s.key].preset) == (s.run_dir, s.data, s.preset)

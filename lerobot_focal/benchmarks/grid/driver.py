@@ -21,10 +21,11 @@ from pathlib import Path
 
 from ...console import doc_parser
 from .methods import resolve_method_phases
-from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES, capped_seeds
+from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
 from .results import ResultsFile
-from .run import RunSpec, resumable_step
+from .run import resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges
+from .specs import RunSpec, make_specs
 
 DEV_TASKS = "pick-place,sweep-into,disassemble,push-wall,basketball"
 
@@ -107,27 +108,10 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     # Demos, held-out demos, periodic and final evaluations, expert_gap and re-score never share a reset seed.
     check_seed_ranges(preset, seeds, rescore_episodes=RESCORE_BLOCKS * preset.eval_episodes)
     work = (args.work or Path("outputs/bench")).resolve()
-    from .datasets import task_data
-
-    # Phase-major, then seed-major: a cut-short grid has whole phases, and within one whole seeds.
-    specs = [RunSpec(t, m.name, s, preset, task_data(work, t, preset, m.obs_type, s), work)
-             for phase in phases for s in seeds for t in tasks for m in phase
-             if s in capped_seeds(preset.seed_caps, m.name, seeds)]
+    specs = make_specs(preset, tasks, [[m.name for m in p] for p in phases], seeds, work)
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
                    "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],
                    "seeds": seeds}
-
-
-def specs_of_grid(out: Path, work: Path) -> dict[str, RunSpec]:
-    """The runs of the grid whose ``grid.json`` is in ``out``, by run key, rebuilt as its invocation built them
-    (preset, overrides, tasks, methods, seeds): what tools that revisit a finished grid's runs start from."""
-    grid = json.loads((out / "grid.json").read_text())
-    args = parse_args(["--preset", grid["preset"]["name"], "--tasks", ",".join(grid["tasks"]), "--methods",
-                       ",".join(grid["methods"]), "--out", str(out), "--work", str(work),
-                       "--seeds", ",".join(map(str, grid["seeds"]))])
-    for key, value in grid.get("overrides", {}).items():  # as the grid's parse_args gave them (JSON: list → tuple)
-        setattr(args, key, tuple(value) if isinstance(value, list) else value)
-    return {s.key: s for s in build_specs(args)[0]}
 
 
 #: Preset fields that do not change what a run measures, left out when two invocations' presets are compared.

@@ -32,9 +32,10 @@ import numpy as np
 
 from ...console import doc_parser
 from ...figures import save_png
-from .revisit import add_run_filters, checkpoint_of, measure_runs
+from .revisit import add_run_filters, measure_runs
+from .seeds import EXPERT_GAP_SEED
+from .specs import checkpoint_of
 
-EXPERT_GAP_SEED = 300_000
 #: Coordinates of MetaWorld's 39-d observation that a reset randomises: first and second object position, goal.
 PLACEMENT_DIMS = (*range(4, 7), *range(11, 14), *range(36, 39))
 WINDOW = 25  # steps per row of the gap table

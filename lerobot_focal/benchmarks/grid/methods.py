@@ -233,12 +233,7 @@ def given(name: str, preset: dict) -> dict[str, str]:
     off the very `lerobot-train` arguments the grid passes, with each policy type's defaults where it passes none."""
     from dataclasses import fields
 
-    from .presets import GridPreset
-
-    def as_tuple(v):
-        return tuple(as_tuple(x) for x in v) if isinstance(v, list) else v
-
-    p = GridPreset(**{f.name: as_tuple(preset[f.name]) for f in fields(GridPreset) if f.name in preset})
+    p = GridPreset.from_dict(preset)
     method = METHODS[name]
     args = method.train_args(p)
     lr = float(_flag(args, "optimizer_lr"))

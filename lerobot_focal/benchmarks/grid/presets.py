@@ -14,7 +14,7 @@ budget where focal's success stops rising and is the one whose numbers compare w
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 #: Reset seeds of the training demos start here. LeRobot's periodic evaluation inside `lerobot-train` resets its
 #: envs with seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and
@@ -111,6 +111,21 @@ class GridPreset:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> GridPreset:
+        """The preset a ``to_dict`` (or ``grid.json``'s ``"preset"``) holds, overrides included. A field the
+        dictionary lacks takes today's default: grids recorded before the field existed ran with that
+        behaviour (each new field's default is the earlier behaviour). A key that is no field is refused."""
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"not fields of a grid preset: {', '.join(unknown)} (fields: {', '.join(sorted(names))})")
+
+        def as_tuple(value):  # JSON stores tuples as lists
+            return tuple(as_tuple(v) for v in value) if isinstance(value, list) else value
+
+        return cls(**{k: as_tuple(v) for k, v in data.items()})
 
 
 def capped_seeds(seed_caps: Iterable[Sequence], method: str, seeds: Sequence[int]) -> list[int]:

@@ -26,8 +26,10 @@ from pathlib import Path
 from ...console import doc_parser
 from .metrics import top_k_mean
 from .processes import run_logged
-from .revisit import add_run_filters, checkpoint_of, measure_runs
+from .revisit import add_run_filters, measure_runs
+from .run import child_env, final_eval_command
 from .seeds import PER_SEED_BLOCK, RESCORE_BLOCKS, RESCORE_SEED
+from .specs import checkpoint_of
 
 
 def block_scores(episodes: Sequence[dict], block: int, top_k: int) -> dict:
@@ -46,8 +48,6 @@ def block_scores(episodes: Sequence[dict], block: int, top_k: int) -> dict:
 
 def rescore_command(spec, checkpoint: Path, episodes: int) -> list[str]:
     """The grid's final `lerobot-eval` of the checkpoint with the re-score's episodes and seeds instead."""
-    from .run import final_eval_command
-
     replaced = {"--eval.n_episodes": str(episodes), "--eval.batch_size": str(min(episodes, 25)),
                 "--seed": str(RESCORE_SEED + PER_SEED_BLOCK * spec.seed)}
     out = []
@@ -58,8 +58,6 @@ def rescore_command(spec, checkpoint: Path, episodes: int) -> list[str]:
 
 
 def measure(spec, blocks: int) -> dict:
-    from .run import child_env
-
     p = spec.preset
     episodes = blocks * p.eval_episodes
     path = spec.run_dir / "rescore_episodes.jsonl"

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .results import ResultsFile
+from .specs import specs_of_grid
 
 
 def add_run_filters(p: argparse.ArgumentParser, methods: str, methods_help: str = "methods to measure") -> None:
@@ -45,11 +46,6 @@ def no_runs_message(tool: str, args: argparse.Namespace, grid_methods: list[str]
           "grid first.", file=sys.stderr)
 
 
-def checkpoint_of(run_dir: Path) -> Path:
-    """The final checkpoint a grid run's training wrote (LeRobot's ``checkpoints/last`` link)."""
-    return run_dir / "train" / "checkpoints" / "last" / "pretrained_model"
-
-
 def measure_runs(tool: str, args: argparse.Namespace, measure: Callable, measured: Callable[[dict], bool],
                  progress: Callable[[str, dict], str]) -> dict[str, dict] | None:
     """Measure each finished run the filters select, by run key, into ``<out>/<tool>.json``.
@@ -58,8 +54,6 @@ def measure_runs(tool: str, args: argparse.Namespace, measure: Callable, measure
     is rewritten after each run, so an interrupted pass keeps what it measured and the next one resumes. Prints
     ``progress(key, entry)`` per run measured. None (after saying why) when the filters match no finished run.
     """
-    from .driver import specs_of_grid
-
     records = finished_runs(args)
     if not records:
         no_runs_message(tool, args)

@@ -16,17 +16,15 @@ import shutil
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 from lerobot_focal.console import console_script
 
-from .datasets import TaskData, collect_task_data
+from .datasets import collect_task_data
 from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
-from .results import run_key
 from .resume import (
     earlier_segments,
     find_resume_point,
@@ -37,35 +35,10 @@ from .resume import (
     seeded_episodes,
     start_segment,
 )
-from .revisit import checkpoint_of
-from .seeds import fresh_offset
+from .seeds import FINAL_EVAL_SEED, fresh_offset
+from .specs import RunSpec, checkpoint_of
 
 UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
-#: Environment seeds of the final fresh-episode evaluation: seed k of a run evaluates FINAL_EVAL_SEED + 1000·k
-#: onwards, far from the periodic evaluations (seeds k…), the demos (0…) and the held-out set (100 000…).
-FINAL_EVAL_SEED = 200_000
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    task: str
-    method: str
-    seed: int
-    preset: GridPreset
-    data: TaskData
-    work: Path
-
-    @property
-    def key(self) -> str:
-        return run_key(self.task, self.method, self.seed)
-
-    @property
-    def run_dir(self) -> Path:
-        return self.work / "runs" / self.preset.runs_folder / self.task / self.method / f"seed{self.seed}"
-
-    @property
-    def obs_type(self) -> str:
-        return METHODS[self.method].obs_type_for(self.preset)
 
 
 def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:

@@ -31,6 +31,13 @@ PERIODIC_FRESH_BLOCK = 10_000
 #: With ``demos_per_seed``, seed k's demos start at demo_seed + DEMO_SEED_STRIDE·k (seed 1 of the default draws
 #: the placements of ``--demo-seed 2000``, the grid's earlier "another draw of the demos" diagnostic).
 DEMO_SEED_STRIDE = 1_000
+#: Held-out demos (the open-loop metrics' episodes) start here, right above the demos' range, for every seed.
+HELDOUT_SEED = DEMO_SEED_END
+#: The final fresh-episode evaluation of seed k starts at FINAL_EVAL_SEED + 1000·k, far from the periodic
+#: evaluations (seeds k…), the demos and the held-out set.
+FINAL_EVAL_SEED = 200_000
+#: expert_gap's episodes of seed k start at EXPERT_GAP_SEED + 1000·k.
+EXPERT_GAP_SEED = 300_000
 #: Re-scoring a final checkpoint (15 blocks × 20 episodes by default) uses RESCORE_SEED + 1000·k onwards.
 RESCORE_SEED = 400_000
 #: The re-score's blocks per run (of N = the preset's eval_episodes each), as the paper's protocol takes top-5 of
@@ -64,10 +71,6 @@ def fresh_offset(preset: GridPreset, seed: int) -> int:
 
 def run_seed_ranges(preset: GridPreset, seed: int, rescore_episodes: int = 0) -> list[SeedRange]:
     """Every range of reset seeds training seed ``seed`` of a grid with ``preset`` may use."""
-    from .datasets import HELDOUT_SEED
-    from .expert_gap import EXPERT_GAP_SEED
-    from .run import FINAL_EVAL_SEED
-
     n_evals = preset.steps // preset.eval_every
     if preset.periodic_eval == "fresh":
         first = fresh_offset(preset, seed) + seed

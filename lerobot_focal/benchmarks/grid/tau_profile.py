@@ -35,7 +35,8 @@ import torch
 from ...console import doc_parser
 from ...figures import save_png
 from .results import ResultsFile
-from .revisit import add_run_filters, checkpoint_of, measure_runs
+from .revisit import add_run_filters, measure_runs
+from .specs import checkpoint_of
 
 TAUS = (0.01, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)
 FRAMES = 512  # evenly spaced frames per dataset

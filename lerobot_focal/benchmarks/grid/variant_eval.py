@@ -30,8 +30,9 @@ from dataclasses import dataclass
 from ...console import doc_parser
 from .metrics import paired_difference
 from .processes import run_logged
-from .revisit import add_run_filters, checkpoint_of, finished_runs, no_runs_message
+from .revisit import add_run_filters, finished_runs, no_runs_message
 from .run import child_env, final_eval_command
+from .specs import checkpoint_of, specs_of_grid
 
 
 @dataclass(frozen=True)
@@ -58,8 +59,6 @@ def main(argv: list[str] | None = None) -> int:
     add_run_filters(p, "focal,focal_online", "focal-family methods to compare")
     args = p.parse_args(argv)
     variant = VARIANTS[args.variant]
-
-    from .driver import specs_of_grid
 
     grid = json.loads((args.out / "grid.json").read_text())
     done_path = args.out / f"variant_{args.variant}.json"
