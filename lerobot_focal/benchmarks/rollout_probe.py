@@ -71,8 +71,8 @@ def install() -> None:
 
     from lerobot_focal.policy.depth_pointcloud_step import DepthToPointCloudProcessorStep
     from lerobot_focal.policy.modeling_focal import FocalPolicy
-    from lerobot_focal.robots.ur10e.rtde_backend import RtdeBackend
-    from lerobot_focal.robots.ur10e.sim_backend import SimBackend
+    from lerobot_focal.robots.ur10e.rtde.rtde_backend import RtdeBackend
+    from lerobot_focal.robots.ur10e.twin.sim_backend import SimBackend
     from lerobot_focal.robots.ur10e.ur10e import UR10e
 
     _wrap(UR10e, "get_observation", "get_observation")

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
-from lerobot_focal.robots.ur10e.ag95 import (  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde.ag95 import (  # noqa: E402
     AG95Config,
     AG95Gripper,
     GripperConnectionError,
@@ -25,7 +25,7 @@ from lerobot_focal.robots.ur10e.ag95 import (  # noqa: E402
     InitState,
     Register,
 )
-from lerobot_focal.robots.ur10e.ag95_sim import AG95ModbusServer, AG95Model  # noqa: E402
+from lerobot_focal.testing.ur10e_emulator.ag95_sim import AG95ModbusServer, AG95Model  # noqa: E402
 
 
 @pytest.fixture

@@ -19,10 +19,10 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("mujoco")
 
 from lerobot_focal.robots.ur10e import UR10e  # noqa: E402
-from lerobot_focal.robots.ur10e.rtde_backend import REFUSAL_GRACE_S  # noqa: E402
-from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
-from lerobot_focal.robots.ur10e.rtde_session import DashboardClient  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde.rtde_backend import REFUSAL_GRACE_S  # noqa: E402
+from lerobot_focal.robots.ur10e.rtde.rtde_session import DashboardClient  # noqa: E402
 from lerobot_focal.robots.ur10e.safety import RobotFaultError  # noqa: E402
+from lerobot_focal.testing.ur10e_emulator.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 
 from .ur_emulator_support import free_loopback_host, rtde_config, wait_still  # noqa: E402
 

@@ -19,7 +19,7 @@ rtde_control = pytest.importorskip("rtde_control")
 pytest.importorskip("mujoco")
 
 from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose  # noqa: E402
-from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
+from lerobot_focal.testing.ur10e_emulator.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 
 from .ur_emulator_support import free_loopback_host, hard_deadline, wait_still  # noqa: E402
 

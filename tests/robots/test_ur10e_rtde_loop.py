@@ -21,7 +21,7 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("mujoco")
 pytest.importorskip("pygame")
 
-from lerobot_focal.robots.ur10e.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
+from lerobot_focal.testing.ur10e_emulator.rtde_emulator import RtdeEmulatorProcess  # noqa: E402
 
 from .test_ur10e_loop import (  # noqa: E402
     BIN,

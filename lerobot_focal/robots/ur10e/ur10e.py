@@ -61,10 +61,10 @@ _REANCHOR_RAD = 0.3
 
 def make_backend(config: UR10eConfig) -> ArmBackend:
     if config.backend == "sim":
-        from .sim_backend import SimBackend
+        from .twin.sim_backend import SimBackend
 
         return SimBackend(config)
-    from .rtde_backend import RtdeBackend
+    from .rtde.rtde_backend import RtdeBackend
 
     return RtdeBackend(config)
 

@@ -17,11 +17,11 @@ import time
 import mujoco
 import numpy as np
 
-from .backend import ArmState
-from .camera_info import CameraInfo
-from .config_ur10e import UR10eConfig
-from .kinematics import HOME_Q, JOINT_LIMITS, JOINT_MAX_SPEED, JOINT_NAMES, matrix_from_pose6, pose6_from_matrix
-from .safety import RobotFaultError
+from ..backend import ArmState
+from ..camera_info import CameraInfo
+from ..config_ur10e import UR10eConfig
+from ..kinematics import HOME_Q, JOINT_LIMITS, JOINT_MAX_SPEED, JOINT_NAMES, matrix_from_pose6, pose6_from_matrix
+from ..safety import RobotFaultError
 from .scene import SceneSpec, build_scene_xml
 from .sim_camera import RayCastCamera
 

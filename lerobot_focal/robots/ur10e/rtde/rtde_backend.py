@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .backend import ArmState
-from .camera_info import CameraInfo, pose_matrix
-from .config_ur10e import UR10eConfig
-from .kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
+from ..backend import ArmState
+from ..camera_info import CameraInfo, pose_matrix
+from ..config_ur10e import UR10eConfig
+from ..kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
+from ..safety import RobotFaultError
 from .rtde_session import (
     PROTECTIVE_STOP_RELEASED,
     DashboardClient,
@@ -29,7 +30,6 @@ from .rtde_session import (
     SessionError,
     probe_controller_version,
 )
-from .safety import RobotFaultError
 
 logger = logging.getLogger(__name__)
 

@@ -13,8 +13,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from lerobot_focal.robots.ur10e.kinematics import rotvec_pose_from_pose6
+
 from .control_script import ControlScript, TwinArm
-from .kinematics import rotvec_pose_from_pose6
 
 logger = logging.getLogger(__name__)
 

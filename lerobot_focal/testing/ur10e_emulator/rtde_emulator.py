@@ -1,5 +1,7 @@
 """An emulated UR controller on loopback: RTDE (30004), dashboard (29999), script port (30003), MuJoCo twin.
 
+A test harness (the rtde backend's tests run against it) that also runs from the CLI (below).
+
 ur_rtde 1.6.5's *real* ``RTDEReceiveInterface`` and ``RTDEControlInterface`` run against it: the control
 interface negotiates RTDE, talks to the dashboard, uploads its control script on the script port and then
 commands the arm through RTDE registers, which :mod:`.control_script` plays (an emulator never runs URScript).
@@ -16,7 +18,7 @@ ports are fixed in ur_rtde; run several emulators on different loopback addresse
 
 Run it standalone, then point the robot at it with ``--robot.backend=rtde --robot.robot_ip=127.0.0.1``::
 
-    python -m lerobot_focal.robots.ur10e.rtde_emulator --host 127.0.0.1 --version 5.15.0.0
+    python -m lerobot_focal.testing.ur10e_emulator.rtde_emulator --host 127.0.0.1 --version 5.15.0.0
 """
 
 from __future__ import annotations
@@ -97,8 +99,8 @@ class ControllerEmulator:
 
 def _emulator_process_main(host: str, options: dict, pipe) -> None:
     """Child process: the MuJoCo twin + the controller, driven by requests from :class:`RtdeEmulatorProcess`."""
-    from .config_ur10e import UR10eConfig
-    from .sim_backend import SimBackend
+    from lerobot_focal.robots.ur10e.config_ur10e import UR10eConfig
+    from lerobot_focal.robots.ur10e.twin.sim_backend import SimBackend
 
     arm = SimBackend(UR10eConfig(backend="sim"))
     arm.connect()
@@ -249,8 +251,8 @@ class RtdeEmulatorProcess:
 def main(argv: list[str] | None = None) -> None:  # pragma: no cover - CLI
     import argparse
 
-    from .config_ur10e import UR10eConfig
-    from .sim_backend import SimBackend
+    from lerobot_focal.robots.ur10e.config_ur10e import UR10eConfig
+    from lerobot_focal.robots.ur10e.twin.sim_backend import SimBackend
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--host", default="127.0.0.1", help="loopback address to serve on (127.x.y.z)")

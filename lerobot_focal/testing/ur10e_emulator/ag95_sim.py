@@ -1,6 +1,6 @@
 """A simulated AG-95 behind a real pymodbus server, so the driver is exercised over the wire without hardware.
 
-:class:`AG95Model` is the device: the registers of :mod:`lerobot_focal.robots.ur10e.ag95`, initialisation that
+:class:`AG95Model` is the device: the registers of :mod:`lerobot_focal.robots.ur10e.rtde.ag95`, initialisation that
 takes a while, fingers that move toward the commanded position at the commanded speed and stop on an object.
 It has no Modbus in it, so the simulated robot can also use it directly.
 
@@ -22,7 +22,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from .ag95 import (
+from lerobot_focal.robots.ur10e.rtde.ag95 import (
     FORCE_RANGE,
     FULL_INIT_COMMAND,
     INIT_COMMAND,

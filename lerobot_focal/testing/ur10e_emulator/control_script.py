@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
+from lerobot_focal.robots.ur10e.kinematics import pose6_from_rotvec_pose, rotvec_pose_from_pose6
 
 logger = logging.getLogger(__name__)
 

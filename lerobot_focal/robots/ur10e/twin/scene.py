@@ -1,8 +1,9 @@
 """MJCF builder for the simulated UR-10e work cell (arm + stand-in gripper + table + objects + camera).
 
-The model is generated from the DH table in :mod:`kinematics` instead of shipping UR's meshes: nothing is
-downloaded, the kinematics match the real controller exactly (checked against :func:`dh_forward` in the tests),
-and the geometry is made of primitives, which is all a ray-cast depth camera needs.
+The model is generated from the DH table in :mod:`lerobot_focal.robots.ur10e.kinematics` instead of shipping
+UR's meshes: nothing is downloaded, the kinematics match the real controller exactly (checked against
+:func:`dh_forward` in the tests), and the geometry is made of primitives, which is all a ray-cast depth camera
+needs.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kinematics import (
+from ..kinematics import (
     AG95_MAX_OPENING_M,
     DH_A,
     DH_ALPHA,

@@ -15,7 +15,7 @@ import numpy as np
 
 from lerobot_focal.sim.raycast_camera import RayCastDepthCamera
 
-from .camera_info import CameraInfo, pose_matrix
+from ..camera_info import CameraInfo, pose_matrix
 
 _BACKGROUND = np.array([0.62, 0.7, 0.8])
 _LIGHT_DIR = np.array([0.3, -0.5, -0.8])  # in the camera (OpenCV) frame, pointing from the scene to the camera
