@@ -120,11 +120,11 @@ def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, 
     assert driver.main([*TINY_ARGS, "--preset", "cpu_fair", "--methods", method, "--out", str(out),
                         "--work", str(work), "--final-episodes", "2"]) == 0
     (record,) = ResultsFile(out / "results.jsonl").records()
-    assert record["status"] == "ok" and record["key"] == f"reach|{method}|0"
-    assert [c["step"] for c in record["curve"]] == [2, 4] and record["fresh_episodes"] == 2
-    assert record["nfe"] == nfe  # network calls per chunk, counted by hooks (EMA and online alike)
-    assert record["latency_ms"] > 0
-    cfg = json.loads(next(Path(record["run_dir"]).rglob("pretrained_model/config.json")).read_text())
+    assert record.status == "ok" and record.key == f"reach|{method}|0"
+    assert [c["step"] for c in record.curve] == [2, 4] and record.fresh_episodes == 2
+    assert record.nfe == nfe  # network calls per chunk, counted by hooks (EMA and online alike)
+    assert record.latency_ms > 0
+    cfg = json.loads(next(Path(record.run_dir).rglob("pretrained_model/config.json")).read_text())
     assert cfg["type"] == method
     if method == "act":  # LeRobot's defaults but the rate the preset's lr sweep chose
         assert cfg["chunk_size"] == ACT_CHUNK and cfg["dim_model"] == 128 and cfg["optimizer_lr"] == 1e-4

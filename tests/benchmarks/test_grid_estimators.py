@@ -211,8 +211,8 @@ def test_a_tiny_grid_evaluates_fresh_placements_and_its_final_checkpoint_is_resc
             "0", "--methods", "focal", "--periodic-eval", "fresh", "--out", str(out), "--work", str(work)]
     assert bench(["grid", *tiny]) == 0
     (record,) = ResultsFile(out / "results.jsonl").records()
-    assert record["status"] == "ok" and record["periodic_eval"] == "fresh"
-    run_dir = Path(record["run_dir"])
+    assert record.status == "ok" and record.periodic_eval == "fresh"
+    run_dir = Path(record.run_dir)
     seeds = [json.loads(x)["seed"] for x in (run_dir / "eval_episodes.jsonl").read_text().splitlines()]
     seeds = [s for s in seeds if s is not None]
     assert sorted(seeds) == [1_000_000, 1_000_001, 1_000_002, 1_000_003]  # evaluation 2 did not replay evaluation 1
@@ -224,6 +224,6 @@ def test_a_tiny_grid_evaluates_fresh_placements_and_its_final_checkpoint_is_resc
     assert sorted(e["seed"] for e in episodes if e["seed"] is not None) == list(range(400_000, 400_006))
     assert entry["mean"] == pytest.approx(np.mean([e["success"] for e in episodes if e["seed"] is not None]))
     summary = json.loads((out / "summary.json").read_text())["methods"]["focal"]["reach"]
-    assert summary["top5_paper_mean"] == pytest.approx(record["success_top_k"])  # fresh: the grid's own top-5
+    assert summary["top5_paper_mean"] == pytest.approx(record.success_top_k)  # fresh: the grid's own top-5
     assert summary["rescore_mean"] == pytest.approx(entry["mean"])
     assert "## Three estimators" in (out / "report.md").read_text()

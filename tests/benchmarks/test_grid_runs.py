@@ -37,11 +37,11 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     out = tmp_path / "out"
     assert driver.main([*TINY_ARGS, "--methods", "focal", "--out", str(out), "--work", str(work)]) == 0
     (record,) = ResultsFile(out / "results.jsonl").records()
-    assert record["status"] == "ok" and record["key"] == "reach|focal|0"
-    assert [c["step"] for c in record["curve"]] == [2, 4]  # LeRobot evaluated at steps 2 and 4
-    assert 0.0 <= record["success_top_k"] <= 1.0 and record["atv"] > 0
-    assert record["nfe"] == 1.0  # one U-Net evaluation per executed chunk, counted by hooks
-    assert record["latency_ms"] > 0 and len(record["compounding_curve"]) >= 20  # held-out reach: ~50 steps
+    assert record.status == "ok" and record.key == "reach|focal|0"
+    assert [c["step"] for c in record.curve] == [2, 4]  # LeRobot evaluated at steps 2 and 4
+    assert 0.0 <= record.success_top_k <= 1.0 and record.atv > 0
+    assert record.nfe == 1.0  # one U-Net evaluation per executed chunk, counted by hooks
+    assert record.latency_ms > 0 and len(record.compounding_curve) >= 20  # held-out reach: ~50 steps
     report = (out / "report.md").read_text()
     assert "FocalPolicy" in report and "top-5" in report
     for png in ("learning_curves.png", "success_bars.png", "compounding_error.png"):
@@ -110,11 +110,11 @@ def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     results = ResultsFile(tmp_path / "results.jsonl")
     run_ray([good, bad], results.append, retries=1, init_kwargs={"num_cpus": 2, "include_dashboard": False})
 
-    records = {r["key"]: r for r in results.records()}
-    assert records["reach|diffusion|0"]["status"] == "ok"
-    assert records["reach|diffusion|0"]["nfe"] == 10.0  # DDIM 10, counted
-    assert records["reach|focal|7"]["status"] == "failed"
-    assert "lerobot-train exited" in records["reach|focal|7"]["error"]
+    records = {r.key: r for r in results.records()}
+    assert records["reach|diffusion|0"].status == "ok"
+    assert records["reach|diffusion|0"].nfe == 10.0  # DDIM 10, counted
+    assert records["reach|focal|7"].status == "failed"
+    assert "lerobot-train exited" in records["reach|focal|7"].error
     starts = (work / "attempts.log").read_text().splitlines()
     assert sum("reach|focal|7" in line for line in starts) == 2  # Ray retried the failed run once
     assert json.loads(results.path.read_text().splitlines()[0])  # whole lines only
@@ -168,7 +168,7 @@ def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
     (record,) = ResultsFile(out / "results.jsonl").records()
-    assert record["status"] == "ok" and record["key"] == "reach|wo_las|0"
+    assert record.status == "ok" and record.key == "reach|wo_las|0"
 
 
 def _grid_of_one_run(work: Path, out: Path, steps: int, method: str) -> tuple[list[str], Path]:
@@ -212,10 +212,10 @@ def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, t
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
     (record,) = ResultsFile(tmp_path / "out" / "results.jsonl").records()
-    assert record["status"] == "ok" and [c["step"] for c in record["curve"]] == [2, 4, 6, 8, 10]
-    (resumed_at,) = record["resumed_from_steps"]
+    assert record.status == "ok" and [c["step"] for c in record.curve] == [2, 4, 6, 8, 10]
+    (resumed_at,) = record.resumed_from_steps
     assert f"reach|focal|0 at step {resumed_at}\n" in listed  # where --dry-run said it would continue
-    assert resumed_at in (2, 4, 6, 8) and record["lost_s"] >= 0 and len(record["spans"]) == 2
+    assert resumed_at in (2, 4, 6, 8) and record.lost_s >= 0 and len(record.spans) == 2
     seeded = _seeded_episodes(run_dir)
     assert seeded[:2] == first_evaluation and len(seeded) == 10  # kept, then the rest, nothing twice
     log = (run_dir / "train.log").read_text()
@@ -241,8 +241,8 @@ def test_a_resume_that_fails_is_not_tried_again_and_the_run_starts_over(work, tm
     rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
     assert rerun.returncode == 0, rerun.stdout[-2000:] + rerun.stderr[-2000:]
     (record,) = ResultsFile(tmp_path / "out" / "results.jsonl").records()
-    assert record["status"] == "ok" and "resumed_from_steps" not in record
-    assert [c["step"] for c in record["curve"]] == [2, 4, 6]
+    assert record.status == "ok" and record.resumed_from_steps is None
+    assert [c["step"] for c in record.curve] == [2, 4, 6]
     starts = [line for line in (work / "attempts.log").read_text().splitlines() if key in line][len(before):]
     assert len(starts) == 2 and "resumed from step" in starts[0] and "resumed" not in starts[1]
     assert "the next attempt starts the run over" in rerun.stdout + rerun.stderr

@@ -17,7 +17,7 @@ from lerobot_focal.benchmarks.grid.metrics import (
     ts_score,
 )
 from lerobot_focal.benchmarks.grid.presets import PRESETS
-from lerobot_focal.benchmarks.grid.results import ResultsFile
+from lerobot_focal.benchmarks.grid.results import ResultsFile, RunRecord
 from lerobot_focal.policy.configuration_focal import ABLATIONS
 
 
@@ -68,7 +68,7 @@ def test_results_file_survives_a_torn_line_and_keeps_the_latest_ok(tmp_path):
         f.write('{"key": "b|focal|0", "sta')  # the driver was killed mid-write
     results.append({"key": "b|focal|0", "status": "ok", "v": 2})
     ok = results.ok()
-    assert ok["a|focal|0"]["v"] == 1 and ok["b|focal|0"]["v"] == 2
+    assert ok["a|focal|0"].extra["v"] == 1 and ok["b|focal|0"].extra["v"] == 2
     lines = results.path.read_text().splitlines()
     assert len(lines) == 4 and json.loads(lines[-1])["v"] == 2
 
@@ -291,7 +291,7 @@ def test_demo_heldout_and_evaluation_seeds_never_overlap():
     from lerobot_focal.benchmarks.grid.datasets import HELDOUT_SEED
     from lerobot_focal.benchmarks.grid.expert_gap import EXPERT_GAP_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
-    from lerobot_focal.datasets.collect import ATTEMPTS_PER_EPISODE
+    from lerobot_focal.datasets.making.collect import ATTEMPTS_PER_EPISODE
 
     for preset in PRESETS.values():
         periodic = {s + i for s in preset.seeds for i in range(preset.eval_episodes)}  # lerobot-train's own seeds
@@ -344,19 +344,22 @@ def test_variant_eval_says_when_no_run_matches_and_writes_nothing(tmp_path, caps
 def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocations_not_at_all():
     from lerobot_focal.benchmarks.grid.report import elapsed_s
 
-    records = [
+    def runs(*times: dict) -> list[RunRecord]:
+        return [RunRecord(key=f"t|focal|{i}", status="ok", **t) for i, t in enumerate(times)]
+
+    records = runs(
         {"started_at": "2026-01-01T10:00:00", "finished_at": "2026-01-01T10:20:00"},
         {"started_at": "2026-01-01T10:05:00", "finished_at": "2026-01-01T10:15:00"},  # inside the first
         {"started_at": "2026-01-01T10:10:00", "finished_at": "2026-01-01T10:30:00"},  # overlaps its end
         # an older record without started_at: 10 min of training + 5 of final evaluation, after a 1 h gap
         {"finished_at": "2026-01-01T11:45:00", "wall_s": 600.0, "final_eval_s": 300.0},
-    ]
+    )
     assert elapsed_s(records) == 30 * 60 + 15 * 60
     assert elapsed_s([]) == 0.0
     # A run interrupted at 12:10 and resumed next day counts its two spans, not the night between.
-    resumed = {"started_at": "2026-01-02T09:00:00", "finished_at": "2026-01-02T09:30:00",
-               "spans": [["2026-01-01T12:00:00", "2026-01-01T12:10:00"],
-                         ["2026-01-02T09:00:00", "2026-01-02T09:30:00"]]}
+    (resumed,) = runs({"started_at": "2026-01-02T09:00:00", "finished_at": "2026-01-02T09:30:00",
+                       "spans": [["2026-01-01T12:00:00", "2026-01-01T12:10:00"],
+                                 ["2026-01-02T09:00:00", "2026-01-02T09:30:00"]]})
     assert elapsed_s([*records, resumed]) == 30 * 60 + 15 * 60 + 10 * 60 + 30 * 60
 
 

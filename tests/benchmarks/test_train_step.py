@@ -7,7 +7,7 @@ import json
 import pytest
 
 from lerobot_focal.benchmarks.train_step import main as train_step_main
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 
 
 def test_pointcloud_variants_on_dataset_clouds_train_to_the_same_losses(tmp_path):

@@ -66,7 +66,7 @@ def task_data(work: Path, task: str, preset: GridPreset, obs_type: str | None = 
 def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, preset: GridPreset, log: Path,
              obs_type: str | None) -> None:
     cmd = [
-        sys.executable, "-m", "lerobot_focal.datasets.collect",
+        sys.executable, "-m", "lerobot_focal.datasets.making.collect",
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
         "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
     ]

@@ -22,7 +22,7 @@ from pathlib import Path
 from ...console import doc_parser
 from .methods import resolve_method_phases
 from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
-from .results import ResultsFile
+from .results import ResultsFile, RunRecord
 from .run import resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges
 from .specs import RunSpec, make_specs
@@ -209,19 +209,19 @@ def main(argv: list[str] | None = None) -> int:
     failed: list[str] = []
     t0 = time.perf_counter()
 
-    def on_result(record: dict) -> None:
+    def on_result(record: RunRecord) -> None:
         results.append(record)
         bar.update(1)
-        if record["status"] == "ok":
-            fresh = record.get("success_fresh")
+        if record.status == "ok":
+            fresh = record.success_fresh
             fresh_text = f", final checkpoint on fresh episodes {fresh:.2f}" if fresh is not None else ""
-            bar.write(f"[grid] {record['key']}: top-{todo[0].preset.top_k} success {record['success_top_k']:.2f}, "
-                      f"last evaluation {record['success_final']:.2f}{fresh_text}, ATV {record['atv']:.4f}, "
-                      f"{record['wall_s'] / 60:.1f} min")
+            bar.write(f"[grid] {record.key}: top-{todo[0].preset.top_k} success {record.success_top_k:.2f}, "
+                      f"last evaluation {record.success_final:.2f}{fresh_text}, ATV {record.atv:.4f}, "
+                      f"{record.wall_s / 60:.1f} min")
         else:
-            failed.append(record["key"])
-            bar.write(f"[grid] {record['key']}: FAILED after {record['attempts']} attempts: "
-                      f"{record['error'].splitlines()[0]}")
+            failed.append(record.key)
+            bar.write(f"[grid] {record.key}: FAILED after {record.attempts} attempts: "
+                      f"{(record.error or '').splitlines()[0]}")
 
     try:
         if args.executor == "ray":

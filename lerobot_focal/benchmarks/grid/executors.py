@@ -13,12 +13,13 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 from .processes import GridStopped, stop_all
+from .results import RunRecord
 from .run import RunSpec, failure_record, run_one
 
-OnResult = Callable[[dict], None]
+OnResult = Callable[[RunRecord], None]
 
 
-def _with_retries(spec: RunSpec, retries: int) -> dict:
+def _with_retries(spec: RunSpec, retries: int) -> RunRecord:
     for attempt in range(1, retries + 2):
         try:
             return run_one(spec)
@@ -58,7 +59,7 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, retries: int = 1, j
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _ray_run(spec: RunSpec) -> dict:
+def _ray_run(spec: RunSpec) -> RunRecord:
     """The Ray task body: run_one, raising on failure so Ray's own retry mechanism retries it."""
     return run_one(spec)
 

@@ -65,10 +65,10 @@ def summarize(out: Path, task: str, seed: int, runs: list[tuple[str, float]]) ->
         r = records.get(run_key(task, method, seed))
         row = {"method": method, "lr": lr, "status": "done" if r else "to do"}
         if r:
-            row.update({k: r.get(k) for k in ("success_top_k", "periodic_eval", "success_final", "success_fresh",
+            row.update({k: getattr(r, k) for k in ("success_top_k", "periodic_eval", "success_final", "success_fresh",
                                               "fresh_episodes", "latency_ms", "nfe", "n_params",
                                               "update_s_per_step", "wall_s")})
-            row["curve"] = [round(c["success"], 3) for c in r["curve"]]
+            row["curve"] = [round(c["success"], 3) for c in r.curve]
         rows.append(row)
     chosen = {}
     for method in dict.fromkeys(m for m, _ in runs):

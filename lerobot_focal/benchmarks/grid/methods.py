@@ -35,6 +35,9 @@ class Method:
     # Its authors' learning rate, where it is not the preset's: used unless the preset's method_lr names one for
     # this method or --lr sets every method's (GridPreset.lr_for).
     own_lr: float | None = None
+    # The method this one is with another setting that is not a method (its consistency target, its input): the
+    # report compares it with that method as one module's contrast, not as a baseline to beat.
+    variant_of: str | None = None
 
     def train_args(self, preset: GridPreset) -> list[str]:
         lr = preset.lr_for(self.name, self.own_lr)
@@ -144,8 +147,8 @@ METHODS: dict[str, Method] = {
         _ablation("fco_prox_freq", "FCO-Prox-Freq"),
         _ablation("anchor_0.4_0.5", "anchor (0.4, 0.5)"),
         _ablation("anchor_1.4_0.5", "anchor (1.4, 0.5)"),
-        Method("focal_online", "FocalPolicy (online target)", "focal", (ONLINE,)),
-        Method("focal_pc", "FocalPolicy (512-pt cloud)", "focal", obs_type="pointcloud"),
+        Method("focal_online", "FocalPolicy (online target)", "focal", (ONLINE,), variant_of="focal"),
+        Method("focal_pc", "FocalPolicy (512-pt cloud)", "focal", obs_type="pointcloud", variant_of="focal"),
         Method("wo_las_ema", "w/o LAS (EMA target)", "focal", ("--policy.ablation=wo_las",)),
         Method("wo_fco_las_ema", "w/o FCO & LAS (EMA target)", "focal", ("--policy.ablation=wo_fco_las",)),
         # Not in the paper: w/o LAS with L_time over all L steps, as FlowPolicy's consistency loss covers them. It

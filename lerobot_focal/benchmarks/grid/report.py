@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
+from dataclasses import replace
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -20,9 +21,11 @@ from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
 from .methods import METHODS, given
 from .metrics import mean_curve, mean_std, paired_difference
 from .presets import capped_seeds
-from .results import ResultsFile
+from .results import ResultsFile, RunRecord
 
 PAPER_MARGIN = 10.0  # points: focal's top-5 within this of the paper on each task
+#: focal's latency per chunk within this factor of a method's, at the same inputs (one network pass each for ACT)
+LATENCY_GOALS = {"act": 1.5}
 METRIC_KEYS = ("success_top_k", "success_top_k_paper", "success_top_k_fixed", "success_rescore_mean",
                "success_final", "success_fresh", "atv", "atv_fresh", "ts_score",
                "compounding_error", "latency_ms", "nfe", "wall_s", "final_eval_s", "update_s_per_step")
@@ -46,7 +49,7 @@ def _cell(mean: float, std: float, n: int, n_grid_seeds: int, scale: float, digi
     return text if text == "–" else f"{text} ({n} seed{'s' if n > 1 else ''})"
 
 
-def with_estimators(records: list[dict], rescored: dict[str, dict]) -> list[dict]:
+def with_estimators(records: list[RunRecord], rescored: dict[str, dict]) -> list[RunRecord]:
     """Each record with the paper's estimator and today's beside each other (see docs/benchmarks.md).
 
     ``success_top_k_paper``: top-k of periodic evaluations on fresh placements (a run with ``periodic_eval``
@@ -56,54 +59,50 @@ def with_estimators(records: list[dict], rescored: dict[str, dict]) -> list[dict
     ``success_rescore_mean``: the re-score's mean over all its episodes."""
     out = []
     for r in records:
-        r = dict(r)
-        fresh = r.get("periodic_eval") == "fresh"
-        again = rescored.get(r["key"])
-        if fresh:
-            r["success_top_k_paper"] = r["success_top_k"]
-        elif again:
-            r["success_top_k_paper"] = again["top_k"]
-        if not fresh:
-            r["success_top_k_fixed"] = r["success_top_k"]
-        if again:
-            r["success_rescore_mean"] = again["mean"]
-        out.append(r)
+        fresh = r.periodic_eval == "fresh"
+        again = rescored.get(r.key)
+        out.append(replace(
+            r,
+            success_top_k_paper=r.success_top_k if fresh else again["top_k"] if again else None,
+            success_top_k_fixed=None if fresh else r.success_top_k,
+            success_rescore_mean=again["mean"] if again else None,
+        ))
     return out
 
 
-def aggregate(records: list[dict]) -> dict:
+def aggregate(records: list[RunRecord]) -> dict:
     """{method: {task: {metric: (mean, std), 'curve': ..., 'seeds': n}}, plus the task average per seed."""
     by = defaultdict(lambda: defaultdict(list))
     for r in records:
-        by[r["method"]][r["task"]].append(r)
+        by[r.method][r.task].append(r)
     out: dict = {}
     for method, tasks in by.items():
         out[method] = {}
         for task, runs in tasks.items():
-            entry = {key: mean_std([r.get(key, math.nan) for r in runs]) for key in METRIC_KEYS}
-            entry["seeds"] = sorted(r["seed"] for r in runs)
-            steps = [c["step"] for c in runs[0]["curve"]]
+            entry = {key: mean_std([r.value(key) for r in runs]) for key in METRIC_KEYS}
+            entry["seeds"] = sorted(r.seed for r in runs)
+            steps = [c["step"] for c in runs[0].curve]
             entry["curve_steps"] = steps
-            entry["curve_success"] = mean_curve([[c["success"] for c in r["curve"]] for r in runs]).tolist()
-            entry["curve_success_std"] = np.std([[c["success"] for c in r["curve"]][: len(steps)] for r in runs],
+            entry["curve_success"] = mean_curve([[c["success"] for c in r.curve] for r in runs]).tolist()
+            entry["curve_success_std"] = np.std([[c["success"] for c in r.curve][: len(steps)] for r in runs],
                                                 axis=0).tolist()
-            entry["compounding_curve"] = mean_curve([r["compounding_curve"] for r in runs]).tolist()
+            entry["compounding_curve"] = mean_curve([r.compounding_curve for r in runs]).tolist()
             out[method][task] = entry
     return out
 
 
-def _task_average_per_seed(records: list[dict], method: str, tasks: list[str], key: str) -> list[float]:
+def _task_average_per_seed(records: list[RunRecord], method: str, tasks: list[str], key: str) -> list[float]:
     """The development-set average of `key` for each seed that has every task (paper: mean ± std over seeds)."""
     per_seed = defaultdict(dict)
     for r in records:
-        if r["method"] == method and r["task"] in tasks and key in r:
-            per_seed[r["seed"]][r["task"]] = r[key]
+        if r.method == method and r.task in tasks and getattr(r, key) is not None:
+            per_seed[r.seed][r.task] = getattr(r, key)
     return [float(np.mean([v[t] for t in tasks])) for v in per_seed.values() if all(t in v for t in tasks)]
 
 
-def _pairs(records: list[dict], a: str, b: str, key: str, tasks: list[str]) -> tuple[list[float], list[float]]:
+def _pairs(records: list[RunRecord], a: str, b: str, key: str, tasks: list[str]) -> tuple[list[float], list[float]]:
     """`key` of methods a and b on every (task, seed) both have: the pairs of a paired comparison."""
-    by = {(r["method"], r["task"], r["seed"]): r.get(key) for r in records}
+    by = {(r.method, r.task, r.seed): getattr(r, key) for r in records}
     common = sorted((t, s) for (m, t, s) in by if m == a and t in tasks and (b, t, s) in by)
     common = [(t, s) for t, s in common if by[(a, t, s)] is not None and by[(b, t, s)] is not None]
     return [by[(a, t, s)] for t, s in common], [by[(b, t, s)] for t, s in common]
@@ -118,7 +117,7 @@ MODULE_CONTRASTS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def _paired_cells(records: list[dict], tasks: list[str], a: str, b: str, keys: list[tuple]) -> list[str] | None:
+def _paired_cells(records: list[RunRecord], tasks: list[str], a: str, b: str, keys: list[tuple]) -> list[str] | None:
     """One table row's cells: a − b per key, with its interval and a's wins / ties / losses; None if no pair."""
     cells = []
     for key, _ in keys:
@@ -131,7 +130,7 @@ def _paired_cells(records: list[dict], tasks: list[str], a: str, b: str, keys: l
 
 
 def _paired_table(
-    records: list[dict], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]
+    records: list[RunRecord], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]
 ) -> list[str]:
     if "focal" not in methods:
         return []
@@ -157,7 +156,7 @@ def _paired_table(
     return rows + [""]
 
 
-def _point_cloud_goal(records: list[dict], tasks: list[str], label: dict) -> list[str]:
+def _point_cloud_goal(records: list[RunRecord], tasks: list[str], label: dict) -> list[str]:
     """focal on the paper's input, beside low-dim focal on the same seeds, and against the paper per task.
 
     The paper's numbers are for point clouds, so this is the like-for-like comparison with them; it is reported,
@@ -165,20 +164,20 @@ def _point_cloud_goal(records: list[dict], tasks: list[str], label: dict) -> lis
     d = paired_difference(*_pairs(records, "focal_pc", "focal", "success_top_k", tasks))
     if d["n"] == 0:
         return []
-    seeds = sorted({r["seed"] for r in records if r["method"] == "focal_pc"})
+    seeds = sorted({r.seed for r in records if r.method == "focal_pc"})
     ci = "" if math.isnan(d["lo"]) else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
     lines = [f"- {label['focal_pc']} beside low-dim focal (top-5, paired over {d['n']} task-seed pairs, seeds "
              f"{', '.join(map(str, seeds))}): {d['mean'] * 100:+.1f} points{ci}"
              f"; point clouds better / level / worse in {d['wins']}/{d['ties']}/{d['losses']} → **reported**"]
     for t in (t for t in tasks if t in PAPER_FOCAL_TOP5):
-        mine = mean_std([r["success_top_k"] for r in records if r["method"] == "focal_pc" and r["task"] == t])[0]
+        mine = mean_std([r.success_top_k for r in records if r.method == "focal_pc" and r.task == t])[0]
         if not math.isnan(mine):
             lines.append(f"  - on {t}: {mine * 100:.1f} vs the paper's {PAPER_FOCAL_TOP5[t]:.1f} "
                          f"({mine * 100 - PAPER_FOCAL_TOP5[t]:+.1f})")
     return lines
 
 
-def _goals(records: list[dict], tasks: list[str], methods: list[str], label: dict) -> list[str]:
+def _goals(records: list[RunRecord], tasks: list[str], methods: list[str], label: dict) -> list[str]:
     """The benchmark's goals, each with its numbers and met / MISSED; nothing here tunes the protocol."""
     if "focal" not in methods:
         return ["- focal is not in this grid: no goals to check."]
@@ -189,7 +188,7 @@ def _goals(records: list[dict], tasks: list[str], methods: list[str], label: dic
 
     paper_tasks = [t for t in tasks if t in PAPER_FOCAL_TOP5]
     for t in paper_tasks:
-        mine = mean_std([r["success_top_k"] for r in records if r["method"] == "focal" and r["task"] == t])[0]
+        mine = mean_std([r.success_top_k for r in records if r.method == "focal" and r.task == t])[0]
         if math.isnan(mine):
             continue
         gap = mine * 100 - PAPER_FOCAL_TOP5[t]
@@ -203,34 +202,40 @@ def _goals(records: list[dict], tasks: list[str], methods: list[str], label: dic
                          f"**{'met' if f * 100 >= paper else 'MISSED'}**")
     if "focal_pc" in methods:
         lines += _point_cloud_goal(records, tasks, label)
-    for m in methods:
-        if m == "focal" or m.startswith("focal"):
-            continue
+    baselines = [m for m in methods if m != "focal" and not (m in METHODS and METHODS[m].variant_of == "focal")]
+    for m in baselines:
         d = paired_difference(*_pairs(records, "focal", m, "success_top_k", tasks))
         if d["n"] == 0:
             continue
         ci = "" if math.isnan(d["lo"]) else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
         lines.append(f"- focal ≥ {label[m]} (top-5, paired over {d['n']} task-seed pairs): "
                      f"{d['mean'] * 100:+.1f} points{ci} → **{'met' if d['mean'] >= 0 else 'MISSED'}**")
-    if "diffusion" in methods:
-        def run_mean(method: str, key: str) -> float:  # over every finished run: cost needs no whole seed
-            return mean_std([r[key] for r in records if r["method"] == method and key in r])[0]
 
-        lf, ld = run_mean("focal", "latency_ms"), run_mean("diffusion", "latency_ms")
-        ratio = ld / lf if lf else math.nan
-        lines.append(f"- latency per chunk: focal {lf:.1f} ms vs diffusion DDIM 10 {ld:.1f} ms = {ratio:.1f}× "
-                     f"(NFE {run_mean('focal', 'nfe'):.0f} vs {run_mean('diffusion', 'nfe'):.0f})")
+    def run_mean(method: str, key: str) -> float:  # over every finished run: cost needs no whole seed
+        return mean_std([r.value(key) for r in records if r.method == method and getattr(r, key) is not None])[0]
+
+    lf = run_mean("focal", "latency_ms")
+    for m in (b for b in baselines if b in METHODS and METHODS[b].policy_type != "focal"):
+        lm = run_mean(m, "latency_ms")
+        if math.isnan(lm) or math.isnan(lf):
+            continue
+        line = (f"- latency per chunk: focal {lf:.1f} ms vs {label[m]} {lm:.1f} ms, a ratio of {lf / lm:.2f} "
+                f"(NFE {run_mean('focal', 'nfe'):.0f} vs {run_mean(m, 'nfe'):.0f})")
+        if m in LATENCY_GOALS:  # a goal of the benchmark: focal's latency within this factor of the method's
+            factor = LATENCY_GOALS[m]
+            line += f" → within {factor:g}× of {label[m]}'s: **{'met' if lf <= factor * lm else 'MISSED'}**"
+        lines.append(line)
     return lines
 
 
 def _estimators_table(
-    records: list[dict], tasks: list[str], methods: list[str], label: dict, preset: dict
+    records: list[RunRecord], tasks: list[str], methods: list[str], label: dict, preset: dict
 ) -> list[str]:
     """One cell per method and task with the three numbers side by side (means over seeds, in %)."""
     k = preset["top_k"]
 
-    def cell(runs: list[dict]) -> str:
-        vals = [mean_std([r.get(key, math.nan) for r in runs])[0]
+    def cell(runs: list[RunRecord]) -> str:
+        vals = [mean_std([r.value(key) for r in runs])[0]
                 for key in ("success_top_k_paper", "success_top_k_fixed", "success_fresh")]
         return " / ".join("n/a" if math.isnan(v) else f"{v * 100:.1f}" for v in vals)
 
@@ -242,64 +247,64 @@ def _estimators_table(
             "and the final checkpoint on fresh episodes. n/a: not measured.", "",
             "| Method | " + " | ".join(tasks) + " |", "|---|" + "---|" * len(tasks)]
     for m in methods:
-        cells = [cell(runs) if (runs := [r for r in records if r["method"] == m and r["task"] == t]) else "–"
+        cells = [cell(runs) if (runs := [r for r in records if r.method == m and r.task == t]) else "–"
                  for t in tasks]
         rows.append(f"| {label[m]} | " + " | ".join(cells) + " |")
-    rescored = [r for r in records if "success_rescore_mean" in r]
+    rescored = [r for r in records if r.success_rescore_mean is not None]
     if rescored:
         rows += ["", "The re-score's mean over all its episodes (same checkpoints): "
-                 + ", ".join(f"{r['key'].replace('|', ' · ')} {r['success_rescore_mean'] * 100:.1f}"
-                             for r in sorted(rescored, key=lambda r: r["key"]))]
+                 + ", ".join(f"{r.key.replace('|', ' · ')} {r.success_rescore_mean * 100:.1f}"
+                             for r in sorted(rescored, key=lambda r: r.key))]
     return rows + [""]
 
 
-def summary_table(records: list[dict], grid: dict) -> dict:
+def summary_table(records: list[RunRecord], grid: dict) -> dict:
     """Per method and task: the protocol's numbers in one flat record (summary.json's "methods")."""
     preset = grid["preset"]
     out: dict = {}
     for m in grid["methods"]:
         for t in grid["tasks"]:
-            runs = [r for r in records if r["method"] == m and r["task"] == t]
+            runs = [r for r in records if r.method == m and r.task == t]
             if not runs:
                 continue
-            top5, top5_std = mean_std([r["success_top_k"] for r in runs])
-            paper, paper_std = mean_std([r.get("success_top_k_paper", math.nan) for r in runs])
-            fixed, fixed_std = mean_std([r.get("success_top_k_fixed", math.nan) for r in runs])
-            fresh, fresh_std = mean_std([r.get("success_fresh", math.nan) for r in runs])
+            top5, top5_std = mean_std([r.success_top_k for r in runs])
+            paper, paper_std = mean_std([r.value("success_top_k_paper") for r in runs])
+            fixed, fixed_std = mean_std([r.value("success_top_k_fixed") for r in runs])
+            fresh, fresh_std = mean_std([r.value("success_fresh") for r in runs])
             out.setdefault(m, {})[t] = {
                 "top5_mean": top5, "top5_std": top5_std,
                 # The paper's estimator (fresh placements at every evaluation, or the re-score's blocks) and
                 # today's top-5 on the same placements at every evaluation (None where a run has no such number).
                 "top5_paper_mean": paper, "top5_paper_std": paper_std,
                 "top5_fixed_mean": fixed, "top5_fixed_std": fixed_std,
-                "periodic_eval": sorted({r.get("periodic_eval", "fixed") for r in runs}),
-                "rescore_mean": mean_std([r.get("success_rescore_mean", math.nan) for r in runs])[0],
+                "periodic_eval": sorted({r.periodic_eval for r in runs}),
+                "rescore_mean": mean_std([r.value("success_rescore_mean") for r in runs])[0],
                 "final_mean": fresh, "final_std": fresh_std,
-                "last_eval_mean": mean_std([r["success_final"] for r in runs])[0],
-                "n_evals": len(runs[0]["curve"]), "episodes_per_eval": preset["eval_episodes"],
-                "final_episodes": runs[0].get("fresh_episodes", 0),
-                "seeds": sorted(r["seed"] for r in runs), "steps": preset["steps"],
+                "last_eval_mean": mean_std([r.success_final for r in runs])[0],
+                "n_evals": len(runs[0].curve), "episodes_per_eval": preset["eval_episodes"],
+                "final_episodes": (runs[0].fresh_episodes or 0),
+                "seeds": sorted(r.seed for r in runs), "steps": preset["steps"],
             }
     return out
 
 
-def elapsed_s(records: list[dict]) -> float:
+def elapsed_s(records: list[RunRecord]) -> float:
     """Seconds during which at least one run of the grid was going: the union of the runs' intervals, so runs
     that overlapped (``--jobs`` > 1) count once and the gaps between grid invocations not at all. A record
     without ``started_at`` (written before it was recorded) starts its training and final evaluation before it
     finished. A run resumed after an interruption counts the spans it kept (``spans``), not the time between."""
     spans = []
     for r in records:
-        if "spans" in r:
-            spans += [(datetime.fromisoformat(a), datetime.fromisoformat(b)) for a, b in r["spans"]]
+        if r.spans:
+            spans += [(datetime.fromisoformat(a), datetime.fromisoformat(b)) for a, b in r.spans]
             continue
-        if "finished_at" not in r:
+        if r.finished_at is None:
             continue
-        end = datetime.fromisoformat(r["finished_at"])
-        if "started_at" in r:
-            start = datetime.fromisoformat(r["started_at"])
+        end = datetime.fromisoformat(r.finished_at)
+        if r.started_at:
+            start = datetime.fromisoformat(r.started_at)
         else:
-            start = end - timedelta(seconds=r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0))
+            start = end - timedelta(seconds=(r.wall_s or 0.0) + (r.final_eval_s or 0.0))
         spans.append((start, end))
     total, reach = 0.0, None
     for start, end in sorted(spans):
@@ -315,11 +320,11 @@ def write_report(out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     grid = json.loads((out_dir / "grid.json").read_text())
     records = list(ResultsFile(out_dir / "results.jsonl").ok().values())
-    records = [r for r in records if r["task"] in grid["tasks"] and r["method"] in grid["methods"]]
+    records = [r for r in records if r.task in grid["tasks"] and r.method in grid["methods"]]
     rescore_path = out_dir / "rescore.json"
     records = with_estimators(records, json.loads(rescore_path.read_text()) if rescore_path.exists() else {})
     failed = [r for r in ResultsFile(out_dir / "results.jsonl").records()
-              if r.get("status") == "failed" and r["key"] not in {x["key"] for x in records}]
+              if r.status == "failed" and r.key not in {x.key for x in records}]
     agg = aggregate(records)
     tasks = grid["tasks"]
     methods = [m for m in grid["methods"] if m in agg]
@@ -333,17 +338,17 @@ def write_report(out_dir: Path) -> Path:
         return capped_seeds(caps, method, grid["seeds"])
 
     todo = len(grid["tasks"]) * sum(len(grid_seeds(m)) for m in grid["methods"]) - len(records)
-    hours = sum(r.get("wall_s", 0.0) + r.get("final_eval_s", 0.0) for r in records) / 3600
+    hours = sum((r.wall_s or 0.0) + (r.final_eval_s or 0.0) for r in records) / 3600
     md += [f"Wall time of the {len(records)} finished runs: {elapsed_s(records) / 3600:.1f} h during which the grid "
            f"had runs going ({hours:.1f} h of training and evaluation summed over the runs, which overlap with "
            "`--jobs` > 1; other work shared the machine)"
            + (f"; {todo} {'run' if todo == 1 else 'runs'} of the grid {'is' if todo == 1 else 'are'} still to do "
               "(rerun the grid command to continue)." if todo > 0 else ".")
            , ""]
-    resumed = [r for r in records if r.get("resumed_from_steps")]
+    resumed = [r for r in records if r.resumed_from_steps]
     if resumed:
         md += [f"{len(resumed)} of the runs continued from a checkpoint after an interruption (LeRobot's resume; "
-               f"{sum(r.get('lost_s', 0.0) for r in resumed) / 60:.1f} min of work after their checkpoints was "
+               f"{sum((r.lost_s or 0.0) for r in resumed) / 60:.1f} min of work after their checkpoints was "
                "redone and is not counted above); their records list the steps they resumed from.", ""]
     if grid.get("overrides"):
         md += ["Overridden on the command line: " + ", ".join(f"{k}={v}" for k, v in grid["overrides"].items()), ""]
@@ -357,7 +362,7 @@ def write_report(out_dir: Path) -> Path:
            "jobs included.", ""]
     if failed:
         md += [f"**{len(failed)} runs failed** and are not in the tables: "
-               + ", ".join(sorted(r["key"] for r in failed)), ""]
+               + ", ".join(sorted(r.key for r in failed)), ""]
 
     def table(title: str, key: str, scale: float, digits: int, note: str = "", extra: list[str] = ()) -> list[str]:
         rows = [f"## {title}", ""] + ([note, ""] if note else [])
@@ -378,8 +383,8 @@ def write_report(out_dir: Path) -> Path:
                      + " | ".join(f"*{PAPER_FOCAL_TOP5[t]:.1f}*" for t in tasks)
                      + f" | *{np.mean([PAPER_FOCAL_TOP5[t] for t in tasks]):.1f}* |"]
     md += table(f"Success, top-{preset['top_k']} (%)", "success_top_k", 100, 1, extra=paper_row)
-    if any("success_fresh" in r for r in records):
-        n_fresh = max(r.get("fresh_episodes", 0) for r in records)
+    if any(r.success_fresh is not None for r in records):
+        n_fresh = max((r.fresh_episodes or 0) for r in records)
         md += table(f"Success of the final checkpoint on {n_fresh} fresh episodes (%)", "success_fresh", 100, 1,
                     "Episodes with seeds no periodic evaluation, demo or held-out episode used. Top-k picks the best "
                     "checkpoints on the episodes it reports, so it is optimistic; this number is not.")
@@ -463,7 +468,7 @@ def _nan_to_none(x):
     return x
 
 
-def _plots(out_dir: Path, agg: dict, records: list[dict], tasks: list[str], methods: list[str], label: dict,
+def _plots(out_dir: Path, agg: dict, records: list[RunRecord], tasks: list[str], methods: list[str], label: dict,
            preset: dict) -> None:
     import matplotlib
 

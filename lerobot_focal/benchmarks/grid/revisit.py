@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from .results import ResultsFile
+from .results import ResultsFile, RunRecord
 from .specs import specs_of_grid
 
 
@@ -25,16 +25,16 @@ def add_run_filters(p: argparse.ArgumentParser, methods: str, methods_help: str 
     p.add_argument("--seeds", default="", help="only these seeds (comma-separated; default: all)")
 
 
-def finished_runs(args: argparse.Namespace, need: tuple[str, ...] = ()) -> list[dict]:
-    """The grid's finished runs (records of ``results.jsonl``) that pass the filters and hold every key of
+def finished_runs(args: argparse.Namespace, need: tuple[str, ...] = ()) -> list[RunRecord]:
+    """The grid's finished runs (records of ``results.jsonl``) that pass the filters and measured every field of
     ``need``, sorted by run key."""
     tasks = {t for t in args.tasks.split(",") if t}
     seeds = {int(s) for s in args.seeds.split(",") if s}
     methods = set(args.methods.split(","))
     records = [r for r in ResultsFile(args.out / "results.jsonl").ok().values()
-               if r["method"] in methods and all(k in r for k in need)
-               and (not tasks or r["task"] in tasks) and (not seeds or int(r["seed"]) in seeds)]
-    return sorted(records, key=lambda r: r["key"])
+               if r.method in methods and all(getattr(r, k) is not None for k in need)
+               and (not tasks or r.task in tasks) and (not seeds or r.seed in seeds)]
+    return sorted(records, key=lambda r: r.key)
 
 
 def no_runs_message(tool: str, args: argparse.Namespace, grid_methods: list[str] | None = None) -> None:
@@ -62,10 +62,10 @@ def measure_runs(tool: str, args: argparse.Namespace, measure: Callable, measure
     done = json.loads(done_path.read_text()) if done_path.exists() else {}
     specs = specs_of_grid(args.out, args.work)
     for r in records:
-        spec = specs.get(r["key"])
-        if spec is None or (r["key"] in done and measured(done[r["key"]])):
+        spec = specs.get(r.key)
+        if spec is None or (r.key in done and measured(done[r.key])):
             continue
-        done[r["key"]] = measure(spec)
+        done[r.key] = measure(spec)
         done_path.write_text(json.dumps(done, indent=1))
-        print(progress(r["key"], done[r["key"]]), flush=True)
+        print(progress(r.key, done[r.key]), flush=True)
     return done

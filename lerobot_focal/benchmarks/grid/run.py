@@ -25,6 +25,7 @@ from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
 from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
+from .results import RunRecord
 from .resume import (
     earlier_segments,
     find_resume_point,
@@ -151,7 +152,7 @@ def resumable_step(spec: RunSpec) -> int | None:
     return point.step if point else None
 
 
-def run_one(spec: RunSpec) -> dict:
+def run_one(spec: RunSpec) -> RunRecord:
     """Train, evaluate and measure one (task, method, seed); returns its result record. Raises RunFailed.
 
     A run interrupted earlier continues from its newest usable checkpoint (see ``resume``), else starts over."""
@@ -228,33 +229,32 @@ def run_one(spec: RunSpec) -> dict:
     )
     analysis = json.loads(analysis_path.read_text())
     successes = [c["success"] for c in curve]
-    return {
-        "key": spec.key,
-        "status": "ok",
-        "task": spec.task,
-        "method": spec.method,
-        "seed": spec.seed,
-        "preset": p.name,
-        "success_top_k": top_k_mean(successes, p.top_k),
-        "periodic_eval": p.periodic_eval,  # "fresh": success_top_k is the paper's estimator (DP3's runner)
-        "success_final": successes[-1],
-        "atv": curve[-1]["atv"],  # executed actions of the final evaluation
-        "curve": curve,
+    finished_at = time.strftime("%Y-%m-%dT%H:%M:%S")
+    return RunRecord(
+        key=spec.key,
+        status="ok",
+        task=spec.task,
+        method=spec.method,
+        seed=spec.seed,
+        preset=p.name,
+        success_top_k=top_k_mean(successes, p.top_k),
+        periodic_eval=p.periodic_eval,
+        success_final=successes[-1],
+        atv=curve[-1]["atv"],
+        curve=curve,
         **final,
         **analysis,
-        "update_s_per_step": (sum(updates) / len(updates)) if updates else None,
-        "wall_s": wall_s,
-        "run_dir": str(out),
-        "started_at": started_at,
-        "finished_at": (finished_at := time.strftime("%Y-%m-%dT%H:%M:%S")),
+        update_s_per_step=(sum(updates) / len(updates)) if updates else None,
+        wall_s=wall_s,
+        run_dir=str(out),
+        started_at=started_at,
+        finished_at=finished_at,
         **({"resumed_from_steps": resumed_from, "lost_s": lost_s, "spans": [*spans, [started_at, finished_at]]}
            if resumed_from else {}),
-    }
+    )
 
 
-def failure_record(spec: RunSpec, error: BaseException, attempts: int) -> dict:
-    return {
-        "key": spec.key, "status": "failed", "task": spec.task, "method": spec.method, "seed": spec.seed,
-        "preset": spec.preset.name, "attempts": attempts, "error": str(error)[-3000:],
-        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
-    }
+def failure_record(spec: RunSpec, error: BaseException, attempts: int) -> RunRecord:
+    return RunRecord(key=spec.key, status="failed", task=spec.task, method=spec.method, seed=spec.seed,
+                     preset=spec.preset.name, attempts=attempts, error=str(error)[-3000:],
+                     finished_at=time.strftime("%Y-%m-%dT%H:%M:%S"))

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ...datasets.collect import ATTEMPTS_PER_EPISODE
+from ...datasets.making.collect import ATTEMPTS_PER_EPISODE
 from .presets import DEMO_SEED, DEMO_SEED_END, GridPreset
 
 #: The fresh periodic evaluations of seed k start at PERIODIC_FRESH_SEED + PERIODIC_FRESH_BLOCK·k: above every

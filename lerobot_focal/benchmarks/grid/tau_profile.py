@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"tau_profile: the finished runs in {args.out / 'results.jsonl'} are not runs of the grid in "
               f"{args.out / 'grid.json'}; nothing measured, nothing written.", file=sys.stderr)
         return 2
-    scores = {k: r["success_top_k"] for k, r in ResultsFile(args.out / "results.jsonl").ok().items()}
+    scores = {k: r.success_top_k for k, r in ResultsFile(args.out / "results.jsonl").ok().items()}
     (args.out / "tau_profile.md").write_text(render(done, scores))
     plot(done, args.out / "tau_profile.png")
     print(render(done, scores))

@@ -69,11 +69,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     specs = specs_of_grid(args.out, args.work)
     for r in records:
-        if r["key"] not in specs or "atv_variant" in done.get(r["key"], {}):
+        if r.key not in specs or "atv_variant" in done.get(r.key, {}):
             continue
-        spec = specs[r["key"]]
+        spec = specs[r.key]
         episodes_file = spec.run_dir / f"{args.variant}_episodes.jsonl"
-        if r["key"] not in done:
+        if r.key not in done:
             cmd = [*final_eval_command(spec, checkpoint_of(spec.run_dir), name=args.variant), *variant.overrides]
             run_logged(cmd, spec.run_dir / f"{args.variant}_eval.log", child_env(spec.preset),
                        f"lerobot-eval ({variant.label})")
@@ -81,12 +81,12 @@ def main(argv: list[str] | None = None) -> int:
             continue  # compared by an earlier version that kept no ATV, and its episodes are gone
         eps = [json.loads(x) for x in episodes_file.read_text().splitlines() if x]
         eps = [e for e in eps if e.get("seed") is not None]
-        done[r["key"]] = {"grid": r["success_fresh"], "variant": sum(e["success"] for e in eps) / len(eps),
-                          "episodes": len(eps), "atv_grid": r.get("atv_fresh"),
+        done[r.key] = {"grid": r.success_fresh, "variant": sum(e["success"] for e in eps) / len(eps),
+                          "episodes": len(eps), "atv_grid": r.atv_fresh,
                           "atv_variant": sum(e["action_total_variation"] for e in eps) / len(eps)}
         done_path.write_text(json.dumps(done, indent=1))
-        print(f"{r['key']}: {GRID_LABEL} {done[r['key']]['grid']:.2f}, {variant.label} "
-              f"{done[r['key']]['variant']:.2f}", flush=True)
+        print(f"{r.key}: {GRID_LABEL} {done[r.key]['grid']:.2f}, {variant.label} "
+              f"{done[r.key]['variant']:.2f}", flush=True)
     (args.out / f"variant_{args.variant}.md").write_text(render(args.variant, done))
     print(render(args.variant, done))
     return 0
