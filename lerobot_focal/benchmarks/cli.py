@@ -6,6 +6,10 @@
     lerobot-focal-bench report --out DIR                (re-render a grid's report.md and plots)
     lerobot-focal-bench rescore --out DIR --work WORK   (a grid's final checkpoints on 15 x 20 fresh episodes:
                                                         top-5 of blocks)
+    lerobot-focal-bench lr-sweep --task T --runs METHOD=LR,LR ... --out DIR  (one grid per method and rate)
+    lerobot-focal-bench expert-gap --out DIR            (a grid's final checkpoints against the scripted expert)
+    lerobot-focal-bench tau-profile --out DIR           (where along the flow focal's one-step map is wrong)
+    lerobot-focal-bench variant-eval --variant V --out DIR  (a grid's final checkpoints, another inference setting)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
@@ -30,6 +34,10 @@ _DELEGATED = {
     "grid": "lerobot_focal.benchmarks.grid.driver",
     "report": "lerobot_focal.benchmarks.grid.report",
     "rescore": "lerobot_focal.benchmarks.grid.rescore",
+    "lr-sweep": "lerobot_focal.benchmarks.grid.diagnostics.lr_sweep",
+    "expert-gap": "lerobot_focal.benchmarks.grid.diagnostics.expert_gap",
+    "tau-profile": "lerobot_focal.benchmarks.grid.diagnostics.tau_profile",
+    "variant-eval": "lerobot_focal.benchmarks.grid.diagnostics.variant_eval",
     "execution-cost": "lerobot_focal.benchmarks.execution_cost",
     "eval-profile": "lerobot_focal.benchmarks.eval_profile",
     "rollout": "lerobot_focal.benchmarks.rollout_latency",
@@ -64,6 +72,14 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("rescore", add_help=False,
                    help="score a finished grid's final checkpoints the paper's way: top-5 of 15 blocks of fresh "
                         "episodes (see `lerobot-focal-bench rescore --help`)")
+    sub.add_parser("lr-sweep", add_help=False, help="one grid invocation per method and learning rate on one task "
+                                                     "and seed, and the rate each method gets")
+    sub.add_parser("expert-gap", add_help=False, help="a grid's final checkpoints against MetaWorld's scripted "
+                                                       "expert, state by state")
+    sub.add_parser("tau-profile", add_help=False, help="where along the flow a grid's focal checkpoints' one-step "
+                                                        "map is still wrong")
+    sub.add_parser("variant-eval", add_help=False, help="a grid's final checkpoints with another inference setting "
+                                                         "on the same fresh episodes")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "

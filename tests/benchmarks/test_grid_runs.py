@@ -56,7 +56,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert sum("reach|focal|0" in line for line in starts) == 1
 
     # The finished run's checkpoint, rolled out by LeRobot's rollout with the scripted expert asked at every state.
-    from lerobot_focal.benchmarks.grid import expert_gap
+    from lerobot_focal.benchmarks.grid.diagnostics import expert_gap
 
     run_dir = next((work / "runs").rglob("reach/focal/seed0"))
     grid_episodes = (run_dir / "eval_episodes.jsonl").read_text()
@@ -80,7 +80,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert expert_gap.main(["--out", str(out), "--work", str(work), "--methods", "diffusion"]) == 2
 
     # The same checkpoint's one-step map measured along the flow, on the run's demos and held-out episodes.
-    from lerobot_focal.benchmarks.grid import tau_profile
+    from lerobot_focal.benchmarks.grid.diagnostics import tau_profile
 
     assert tau_profile.main(["--out", str(out), "--work", str(work), "--frames", "16"]) == 0
     prof = json.loads((out / "tau_profile.json").read_text())["reach|focal|0"]

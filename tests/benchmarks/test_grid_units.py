@@ -258,7 +258,7 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
 
 
 def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end():
-    from lerobot_focal.benchmarks.grid.expert_gap import summarise
+    from lerobot_focal.benchmarks.grid.diagnostics.expert_gap import summarise
 
     gap = np.zeros((3, 60, 4))
     gap[0, :30], gap[0, 30:] = 0.1, 9.0  # a success that ended at step 29: what follows is not its episode
@@ -274,7 +274,7 @@ def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end(
 
 
 def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
-    from lerobot_focal.benchmarks.grid.expert_gap import placement_split
+    from lerobot_focal.benchmarks.grid.diagnostics.expert_gap import placement_split
 
     low, high = np.zeros(39), np.zeros(39)
     high[4:7], high[36:39] = 1.0, 1.0  # object and goal varied in the demos; the second object (11:14) did not
@@ -289,8 +289,8 @@ def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
 def test_demo_heldout_and_evaluation_seeds_never_overlap():
     """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
     from lerobot_focal.benchmarks.grid.datasets import HELDOUT_SEED
-    from lerobot_focal.benchmarks.grid.expert_gap import EXPERT_GAP_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
+    from lerobot_focal.benchmarks.grid.seeds import EXPERT_GAP_SEED
     from lerobot_focal.datasets.making.collect import ATTEMPTS_PER_EPISODE
 
     for preset in PRESETS.values():
@@ -326,7 +326,7 @@ def test_a_second_evaluation_of_the_final_checkpoint_keeps_its_own_files_and_the
 
 def test_variant_eval_says_when_no_run_matches_and_writes_nothing(tmp_path, capsys):
     """A filter that matches no finished run is a mistake to name, not an empty table to commit."""
-    from lerobot_focal.benchmarks.grid import variant_eval
+    from lerobot_focal.benchmarks.grid.diagnostics import variant_eval
 
     out = tmp_path / "out"
     out.mkdir()
@@ -364,7 +364,7 @@ def test_grid_wall_time_counts_overlapping_runs_once_and_gaps_between_invocation
 
 
 def test_variant_table_pairs_success_and_atv_and_keeps_run_keys_out_of_the_column_separators():
-    from lerobot_focal.benchmarks.grid.variant_eval import render
+    from lerobot_focal.benchmarks.grid.diagnostics.variant_eval import render
 
     done = {"basketball|focal|0": {"grid": 0.42, "variant": 0.30, "episodes": 50,
                                    "atv_grid": 0.20, "atv_variant": 0.10},
@@ -386,7 +386,7 @@ def test_tau_profile_scores_the_one_step_map_on_valid_steps_of_each_window():
     padded steps left out, and the averaging over noise draws."""
     import torch
 
-    from lerobot_focal.benchmarks.grid.tau_profile import one_step_errors
+    from lerobot_focal.benchmarks.grid.diagnostics.tau_profile import one_step_errors
     from tests.policy.helpers import small_policy
 
     policy = small_policy(pointcloud=None, action=2)
@@ -415,7 +415,7 @@ def test_tau_profile_scores_the_one_step_map_on_valid_steps_of_each_window():
 
 
 def test_tau_profile_pairs_runs_by_task_and_seed_with_geometric_mean_ratios():
-    from lerobot_focal.benchmarks.grid.tau_profile import render
+    from lerobot_focal.benchmarks.grid.diagnostics.tau_profile import render
 
     def run(errors):
         split = {"taus": [0.01, 0.99], "frames": 8, "proximal": errors, "macro": errors,

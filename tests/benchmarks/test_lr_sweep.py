@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from lerobot_focal.benchmarks.grid import lr_sweep
+from lerobot_focal.benchmarks.grid.diagnostics import lr_sweep
 from lerobot_focal.benchmarks.grid.results import ResultsFile
 
 

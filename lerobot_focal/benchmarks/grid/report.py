@@ -438,11 +438,11 @@ def _given_table(methods: list[str], label: dict, preset: dict, agg: dict) -> li
 
 #: Analyses of a finished grid's runs written beside its report: (file pattern, tool module, what it asks).
 DIAGNOSTICS: tuple[tuple[str, str, str], ...] = (
-    ("expert_gap.md", "expert_gap", "Where do the runs fail? Each final checkpoint against MetaWorld's scripted "
+    ("expert_gap.md", "expert-gap", "Where do the runs fail? Each final checkpoint against MetaWorld's scripted "
                                     "expert, state by state, and success inside / outside the demos' placements."),
-    ("tau_profile.md", "tau_profile", "Where along the flow is each focal-family checkpoint's one-step map still "
+    ("tau_profile.md", "tau-profile", "Where along the flow is each focal-family checkpoint's one-step map still "
                                       "wrong, on its demos and on held-out episodes?"),
-    ("variant_*.md", "variant_eval", "Would the final checkpoints act better with another inference setting, on "
+    ("variant_*.md", "variant-eval", "Would the final checkpoints act better with another inference setting, on "
                                      "the same fresh episodes?"),
 )
 
@@ -453,7 +453,7 @@ def _diagnostics(out_dir: Path) -> list[str]:
     for pattern, tool, question in DIAGNOSTICS:
         links = ", ".join(f"[{path.stem}]({path.name})" for path in sorted(out_dir.glob(pattern)))
         if links:
-            rows.append(f"- {links} (`python -m lerobot_focal.benchmarks.grid.{tool}`): {question}")
+            rows.append(f"- {links} (`lerobot-focal-bench {tool}`): {question}")
     return ["## Diagnostics of the finished runs", "", *rows, ""] if rows else []
 
 

@@ -1,7 +1,7 @@
 """Would focal's finished grid checkpoints act better with another inference setting?
 
-    python -m lerobot_focal.benchmarks.grid.variant_eval --variant online --out docs/benchmarks/grid_cpu_plateau
-    python -m lerobot_focal.benchmarks.grid.variant_eval --variant nfe4 --tasks basketball,pick-place --out ...
+    lerobot-focal-bench variant-eval --variant online --out docs/benchmarks/grid_cpu_plateau
+    lerobot-focal-bench variant-eval --variant nfe4 --tasks basketball,pick-place --out ...
 
 Run it between grid invocations, not beside a running grid (one heavy job at a time).
 
@@ -27,12 +27,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from ...console import doc_parser
-from .metrics import paired_difference
-from .processes import run_logged
-from .revisit import add_run_filters, finished_runs, no_runs_message
-from .run import child_env, final_eval_command
-from .specs import checkpoint_of, specs_of_grid
+from ....console import doc_parser
+from ..metrics import paired_difference
+from ..processes import run_logged
+from ..revisit import add_run_filters, finished_runs, no_runs_message
+from ..run import child_env, final_eval_command
+from ..specs import checkpoint_of, specs_of_grid
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ GRID_LABEL = "grid (EMA, 1 step)"
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.variant_eval")
+    p = doc_parser(__doc__, "lerobot-focal-bench variant-eval")
     p.add_argument("--variant", choices=sorted(VARIANTS), required=True)
     add_run_filters(p, "focal,focal_online", "focal-family methods to compare")
     args = p.parse_args(argv)
@@ -96,7 +96,7 @@ def render(name: str, done: dict[str, dict]) -> str:
     variant = VARIANTS[name]
     keys = sorted(done)
     md = [f"# The grid's final checkpoints with {variant.label} (fresh episodes)", "",
-          f"`python -m lerobot_focal.benchmarks.grid.variant_eval --variant {name} --out <grid>`: each run's final "
+          f"`lerobot-focal-bench variant-eval --variant {name} --out <grid>`: each run's final "
           f"checkpoint on the same fresh episodes as the grid's number, with `{' '.join(variant.overrides)}`.", "",
           f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} | ATV, grid | ATV, variant |",
           "|---|---|---|---|---|---|"]

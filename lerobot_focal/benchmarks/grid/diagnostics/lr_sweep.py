@@ -1,6 +1,6 @@
 """A learning-rate sweep through the grid: each (method, lr) is one grid invocation, one task, one seed.
 
-    python -m lerobot_focal.benchmarks.grid.lr_sweep --preset cpu_fair --task disassemble --seed 0 \\
+    lerobot-focal-bench lr-sweep --preset cpu_fair --task disassemble --seed 0 \\
         --runs diffusion_ema=1e-4,3e-4,1e-3 --runs act=1e-5,1e-4 \\
         --out docs/benchmarks/lr_sweep_fair --work outputs/bench
 
@@ -26,8 +26,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ...console import doc_parser
-from .results import ResultsFile, run_key
+from ....console import doc_parser
+from ..results import ResultsFile, run_key
 
 
 def parse_runs(specs: list[str]) -> list[tuple[str, float]]:
@@ -89,7 +89,7 @@ def render(summary: dict) -> str:
     lines = [f"# Learning-rate sweep: {summary['task']}, seed {summary['seed']}", "",
              "Success in %. top-k: the run's periodic evaluations (fresh placements at each: the paper's estimator, "
              "or the same ones each time: fixed, as the preset says); fresh: the final checkpoint on its fresh "
-             "episodes. Written by `python -m lerobot_focal.benchmarks.grid.lr_sweep` (docstring: how to rerun).", "",
+             "episodes. Written by `lerobot-focal-bench lr-sweep` (docstring: how to rerun).", "",
              "| method | lr | top-k | last evaluation | fresh (episodes) | curve (every evaluation) "
              "| latency ms/chunk | NFE | s/step | wall min |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -119,7 +119,7 @@ def write_summary(out: Path, task: str, seed: int, runs: list[tuple[str, float]]
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.lr_sweep")
+    p = doc_parser(__doc__, "lerobot-focal-bench lr-sweep")
     p.add_argument("--preset", default="cpu_fair")
     p.add_argument("--task", required=True, help="one MetaWorld v3 task")
     p.add_argument("--seed", type=int, default=0)

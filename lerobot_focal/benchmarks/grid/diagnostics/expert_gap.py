@@ -1,6 +1,6 @@
 """Where do a grid run's failures leave the demonstrator? On-policy disagreement with MetaWorld's scripted expert.
 
-    python -m lerobot_focal.benchmarks.grid.expert_gap --out docs/benchmarks/grid_cpu_plateau \
+    lerobot-focal-bench expert-gap --out docs/benchmarks/grid_cpu_plateau \
         --tasks basketball --seeds 0
 
 Success rates say how often a policy fails, not where. This rolls out a finished run's final checkpoint through
@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ...console import doc_parser
-from ...figures import save_png
-from .revisit import add_run_filters, measure_runs
-from .seeds import EXPERT_GAP_SEED
-from .specs import checkpoint_of
+from ....console import doc_parser
+from ....figures import save_png
+from ..revisit import add_run_filters, measure_runs
+from ..seeds import EXPERT_GAP_SEED
+from ..specs import checkpoint_of
 
 #: Coordinates of MetaWorld's 39-d observation that a reset randomises: first and second object position, goal.
 PLACEMENT_DIMS = (*range(4, 7), *range(11, 14), *range(36, 39))
@@ -56,7 +56,7 @@ def measure(
 
     import lerobot_focal.envs  # noqa: F401  registers focal_metaworld, the env type the checkpoint names
 
-    from .analyze import load_policy
+    from ..analyze import load_policy
 
     policy, pre, post = load_policy(checkpoint)
     env_cfg = TrainPipelineConfig.from_pretrained(checkpoint).env
@@ -128,7 +128,7 @@ def summarise(gap: np.ndarray, last: np.ndarray, success: np.ndarray, ever_grasp
 
 def render(done: dict[str, dict]) -> str:
     md = ["# Where failures leave the expert (on-policy disagreement)", "",
-          "`python -m lerobot_focal.benchmarks.grid.expert_gap --out <grid>`: each run's final checkpoint rolled out "
+          "`lerobot-focal-bench expert-gap --out <grid>`: each run's final checkpoint rolled out "
           "by LeRobot's `rollout` on episodes of its own; at every visited state MetaWorld's scripted expert (the "
           "demonstrator) is asked what it would do. Mean |policy − expert| per action dimension, actions in "
           "[−1, 1]; \"never held\" = MetaWorld's `grasp_success` was never set. Its episodes are its own (20 by "
@@ -235,7 +235,7 @@ def plot(done: dict[str, dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.expert_gap")
+    p = doc_parser(__doc__, "lerobot-focal-bench expert-gap")
     add_run_filters(p, "focal")
     p.add_argument("--episodes", type=int, default=20, help="episodes per run (default 20)")
     args = p.parse_args(argv)

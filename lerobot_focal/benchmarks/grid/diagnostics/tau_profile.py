@@ -1,6 +1,6 @@
 """Where along the flow is a consistency model still wrong? The one-step prediction error at every flow time τ.
 
-    python -m lerobot_focal.benchmarks.grid.tau_profile --out docs/benchmarks/grid_cpu_plateau \
+    lerobot-focal-bench tau-profile --out docs/benchmarks/grid_cpu_plateau \
         --methods focal,focal_online,wo_las,wo_fco_las
 
 A consistency flow model acts through one map: from a point M_τ = (1 − τ)·M_0 + τ·M_1 of the straight path
@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...console import doc_parser
-from ...figures import save_png
-from .results import ResultsFile
-from .revisit import add_run_filters, measure_runs
-from .specs import checkpoint_of
+from ....console import doc_parser
+from ....figures import save_png
+from ..results import ResultsFile
+from ..revisit import add_run_filters, measure_runs
+from ..specs import checkpoint_of
 
 TAUS = (0.01, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)
 FRAMES = 512  # evenly spaced frames per dataset
@@ -72,7 +72,7 @@ def one_step_errors(policy, batch: dict[str, torch.Tensor], taus: tuple[float, .
 
 def load_focal(checkpoint: Path):
     """The checkpoint's policy and preprocessor, as ``lerobot-eval`` loads them; refuses a non-focal policy."""
-    from .analyze import load_policy
+    from ..analyze import load_policy
 
     policy, pre, _post = load_policy(checkpoint)
     if policy.config.type != "focal":
@@ -116,7 +116,7 @@ def render(done: dict[str, dict], scores: dict[str, float]) -> str:
     groups = _groups(done)
     taus = next(iter(done.values()))["train"]["taus"]
     md = ["# Where along the flow the one-step map is still wrong", "",
-          "`python -m lerobot_focal.benchmarks.grid.tau_profile --out <grid>`: mean squared error of the one-step "
+          "`lerobot-focal-bench tau-profile --out <grid>`: mean squared error of the one-step "
           "prediction f(M_τ, τ) = M_τ + (1 − τ)·v(M_τ, τ, o) against the expert chunk M_1, on the proximal "
           "(executed) chunk, in normalised action units; inference evaluates it at τ = ε (the first column). "
           "Mean over the method's seeds; each run on evenly spaced frames of its own demos with fixed noise. "
@@ -223,7 +223,7 @@ def plot(done: dict[str, dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser(__doc__, "python -m lerobot_focal.benchmarks.grid.tau_profile")
+    p = doc_parser(__doc__, "lerobot-focal-bench tau-profile")
     add_run_filters(p, "focal,focal_online,wo_las,wo_fco_las", "focal-family methods to measure")
     p.add_argument("--frames", type=int, default=FRAMES, help=f"frames per dataset (default {FRAMES})")
     args = p.parse_args(argv)
