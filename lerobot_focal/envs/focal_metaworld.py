@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -115,8 +116,15 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
     # the count comes from the file (not a counter in the process) so that a run resumed from a checkpoint, whose
     # file the grid cuts back to that checkpoint, continues with new placements instead of replaying the first.
     fresh_reset_seeds: int | None = None
+    # A diagnostic of execution, not a policy setting: the gripper command (action[3]) is snapped to the nearer of
+    # these two levels before it reaches MetaWorld (the two levels the scripted expert's demos use, e.g. 0 and 1 for
+    # pick-place), so a policy's hesitant in-between grip commands can be told apart from its arm motion. The ATV
+    # and the recorded actions are those after snapping. None: actions as the policy gives them.
+    gripper_levels: tuple[float, float] | None = None
 
-    EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = ("env_state", "camera_pos", "render_videos", "table_clearance")
+    EXTRA_GYM_FIELDS: ClassVar[tuple[str, ...]] = (
+        "env_state", "camera_pos", "render_videos", "table_clearance", "gripper_levels",
+    )
 
     def __post_init__(self) -> None:
         self.check_fields()
@@ -127,6 +135,14 @@ class FocalMetaworldEnvConfig(FocalSimEnvConfig):
                 "fresh_reset_seeds counts the evaluation episodes recorded in metrics_path: set --env.metrics_path "
                 "too (or leave fresh_reset_seeds unset)."
             )
+        if self.gripper_levels is not None:
+            levels = tuple(float(x) for x in self.gripper_levels)
+            if len(levels) != 2 or not all(math.isfinite(x) for x in levels) or levels[0] == levels[1]:
+                raise ValueError(
+                    f"gripper_levels must be two different finite numbers (the demos' open and closed commands, "
+                    f"e.g. --env.gripper_levels='[0.0,1.0]'); got {self.gripper_levels!r}"
+                )
+            self.gripper_levels = levels
         if self.render_mode != "rgb_array":
             raise ValueError(f"render_mode must be 'rgb_array' (frames for videos), got {self.render_mode!r}.")
         if not self.render_videos and uses_pixels(self.obs_type):

@@ -117,8 +117,11 @@ class FocalMetaworldEnv(MetaworldEnv):
         render_videos: bool = True,
         table_clearance: float | None = DEFAULT_TABLE_CLEARANCE,
         reset_seed_offset: int = 0,
+        gripper_levels: tuple[float, float] | None = None,
     ) -> None:
         check_obs_type(obs_type)
+        # The gripper command snapped to the nearer of two levels (FocalMetaworldEnvConfig.gripper_levels).
+        self.gripper_levels = None if gripper_levels is None else np.asarray(gripper_levels, dtype=np.float32)
         # Added to every reset seed (placements): lets one evaluation draw other placements than the last one
         # although LeRobot resets with the same seeds each time (see FocalMetaworldEnvConfig.fresh_reset_seeds).
         self.reset_seed_offset = reset_seed_offset
@@ -269,6 +272,9 @@ class FocalMetaworldEnv(MetaworldEnv):
         action = np.asarray(action, dtype=np.float32)
         if action.shape != self.action_space.shape:
             raise ValueError(f"expected an action of shape {self.action_space.shape}, got {action.shape}")
+        if self.gripper_levels is not None:
+            action = action.copy()
+            action[3] = self.gripper_levels[np.argmin(np.abs(self.gripper_levels - action[3]))]
         self.metrics.step(action)
         raw_obs, reward, done, truncated, info = self._env.step(action)
         is_success = bool(info.get("success", 0))

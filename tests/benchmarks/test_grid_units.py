@@ -463,3 +463,34 @@ def test_preset_from_dict_round_trips_and_reads_older_grids(tmp_path):
     assert sorted(rebuilt) == sorted(s.key for s in specs)
     for s in specs:
         assert (rebuilt[s.key].run_dir, rebuilt[s.key].data, rebuilt[s.key].preset) == (s.run_dir, s.data, s.preset)
+
+
+def test_gripper_variant_snaps_to_the_two_levels_of_the_runs_own_demos(tmp_path):
+    """The variant reads the levels from the run's demos on disk (a LeRobotDataset), passes them to lerobot-eval,
+    and refuses demos whose grip command takes more than two values."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_focal.benchmarks.grid.datasets import TaskData
+    from lerobot_focal.benchmarks.grid.diagnostics.variant_eval import VARIANTS, demo_gripper_levels
+    from lerobot_focal.benchmarks.grid.presets import PRESETS
+    from lerobot_focal.benchmarks.grid.specs import RunSpec
+
+    def spec_with_grips(name: str, grips: list[float]) -> RunSpec:
+        root = tmp_path / name
+        feats = {"observation.state": {"dtype": "float32", "shape": (2,), "names": None},
+                 "action": {"dtype": "float32", "shape": (4,), "names": None}}
+        ds = LeRobotDataset.create(repo_id=f"local/{name}", fps=10, features=feats, root=root, use_videos=False)
+        for grip in grips:
+            ds.add_frame({"observation.state": np.zeros(2, np.float32),
+                          "action": np.array([0.1, -0.2, 0.3, grip], np.float32), "task": "t"})
+        ds.save_episode()
+        ds.finalize()
+        data = TaskData("disassemble", root, f"local/{name}", root, f"local/{name}")
+        return RunSpec("disassemble", "focal", 0, PRESETS["cpu_fair"], data, tmp_path)
+
+    two = spec_with_grips("two", [0.0, 0.0, 0.8, 0.8, 0.0])
+    assert demo_gripper_levels(two) == (0.0, pytest.approx(0.8))
+    (arg,) = VARIANTS["gripper"].arguments(two)
+    assert arg.startswith("--env.gripper_levels=[0.0,0.8")
+    with pytest.raises(ValueError, match="take 3 values"):
+        demo_gripper_levels(spec_with_grips("three", [0.0, 0.5, 0.8]))

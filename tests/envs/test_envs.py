@@ -202,6 +202,30 @@ def test_metaworld_expert_success_terminates_with_metrics(tmp_path):
         env.close()
 
 
+def test_metaworld_gripper_levels_snap_the_grip_command_and_refuse_nonsense():
+    """With gripper_levels a grip command between the levels acts as the nearer level (the fingers end where the
+    level's would, not where the raw command's would); without them the raw command acts."""
+    from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
+
+    def fingers(command: float, **kwargs) -> np.ndarray:
+        env = FocalMetaworldEnvConfig(task="pick-place", obs_type="state", **kwargs).make_single_env()
+        try:
+            env.reset(seed=0)
+            for _ in range(15):
+                obs, *_ = env.step(np.array([0.0, 0.0, 0.0, command], np.float32))
+            return obs["agent_pos"]
+        finally:
+            env.close()
+
+    snapped = fingers(0.7, gripper_levels=(0.0, 1.0))
+    assert np.array_equal(snapped, fingers(1.0))  # 0.7 is nearer 1
+    assert not np.allclose(snapped, fingers(0.7))  # the raw command closes the fingers less
+    assert np.array_equal(fingers(0.3, gripper_levels=(0.0, 1.0)), fingers(0.0))
+    for bad in ((1.0,), (0.5, 0.5), (0.0, float("nan"))):
+        with pytest.raises(ConfigError, match="gripper_levels must be two different finite numbers"):
+            FocalMetaworldEnvConfig(task="pick-place", obs_type="state", gripper_levels=bad)
+
+
 def test_metaworld_truncates_at_episode_length():
     from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 

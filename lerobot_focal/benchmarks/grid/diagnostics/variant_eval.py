@@ -16,7 +16,10 @@ pair by pair, with the grid's number (EMA weights, one network evaluation per ch
 * ``exec8``: 8 of the 12 predicted actions executed per chunk instead of the proximal 4 (half the re-plans),
   to tell whether fewer re-plans help and how good the foresight part of the macro-trajectory is;
 * ``noise0``: every chunk started from M_0 = 0 instead of fresh noise, to tell whether switching between
-  sampled modes from one re-plan to the next is what makes a policy dither.
+  sampled modes from one re-plan to the next is what makes a policy dither;
+* ``gripper``: the gripper command snapped to the two levels the run's own demos use (``--env.gripper_levels``,
+  read from the demos, e.g. 0 and 0.8 on disassemble), to tell how much of a grasping miss is a hesitant grip
+  command rather than where the arm goes.
 
 Writes ``variant_<name>.json`` and ``variant_<name>.md`` beside the grid's report; resumable (runs already
 compared are skipped).
@@ -25,6 +28,7 @@ compared are skipped).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from ....console import doc_parser
@@ -32,13 +36,42 @@ from ..metrics import paired_difference
 from ..processes import run_logged
 from ..revisit import add_run_filters, finished_runs, no_runs_message
 from ..run import child_env, final_eval_command
-from ..specs import checkpoint_of, specs_of_grid
+from ..specs import RunSpec, checkpoint_of, specs_of_grid
 
 
 @dataclass(frozen=True)
 class Variant:
     label: str  # what the compared column shows
     overrides: tuple[str, ...]  # lerobot-eval arguments on top of the grid's final evaluation
+    # Arguments that depend on the run (its demos), added to ``overrides``.
+    per_run: Callable[[RunSpec], tuple[str, ...]] | None = None
+
+    def arguments(self, spec: RunSpec) -> tuple[str, ...]:
+        return self.overrides + (self.per_run(spec) if self.per_run else ())
+
+
+def demo_gripper_levels(spec: RunSpec) -> tuple[float, float]:
+    """The two gripper commands (action[3]) of the run's training demos. MetaWorld's scripted experts command
+    one of two levels per task (open / closed: 0 and 1 on pick-place, 0 and 0.8 on disassemble); demos with other
+    values are refused, as snapping to two levels would not describe them."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    files = sorted((spec.data.train_root / "data").rglob("*.parquet"))
+    if not files:
+        raise FileNotFoundError(f"no demos under {spec.data.train_root / 'data'}: run the grid first")
+    grip = np.concatenate([np.stack(pq.read_table(f, columns=["action"]).column("action").to_numpy(
+        zero_copy_only=False))[:, 3] for f in files])
+    levels = np.unique(np.round(grip, 4))
+    if len(levels) != 2:
+        raise ValueError(f"{spec.data.train_root}: the demos' gripper commands take {len(levels)} values "
+                         f"({levels[:8].tolist()}...), not two levels; the gripper variant needs two")
+    return float(levels[0]), float(levels[1])
+
+
+def _snap_to_demo_levels(spec: RunSpec) -> tuple[str, ...]:
+    low, high = demo_gripper_levels(spec)
+    return (f"--env.gripper_levels=[{low},{high}]",)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -49,6 +82,7 @@ VARIANTS: dict[str, Variant] = {
     "exec8": Variant("8 actions executed per chunk", ("--policy.n_action_steps=8",)),
     # Every chunk from M_0 = 0: one deterministic trajectory per observation instead of a fresh sample per re-plan.
     "noise0": Variant("starting noise 0", ("--policy.inference_noise_scale=0",)),
+    "gripper": Variant("gripper snapped to the demos' two levels", (), per_run=_snap_to_demo_levels),
 }
 GRID_LABEL = "grid (EMA, 1 step)"
 
@@ -74,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         spec = specs[r.key]
         episodes_file = spec.run_dir / f"{args.variant}_episodes.jsonl"
         if r.key not in done:
-            cmd = [*final_eval_command(spec, checkpoint_of(spec.run_dir), name=args.variant), *variant.overrides]
+            cmd = [*final_eval_command(spec, checkpoint_of(spec.run_dir), name=args.variant),
+                   *variant.arguments(spec)]
             run_logged(cmd, spec.run_dir / f"{args.variant}_eval.log", child_env(spec.preset),
                        f"lerobot-eval ({variant.label})")
         elif not episodes_file.exists():
@@ -97,7 +132,8 @@ def render(name: str, done: dict[str, dict]) -> str:
     keys = sorted(done)
     md = [f"# The grid's final checkpoints with {variant.label} (fresh episodes)", "",
           f"`lerobot-focal-bench variant-eval --variant {name} --out <grid>`: each run's final "
-          f"checkpoint on the same fresh episodes as the grid's number, with `{' '.join(variant.overrides)}`.", "",
+          f"checkpoint on the same fresh episodes as the grid's number, with "
+          f"`{' '.join(variant.overrides) or 'per-run ' + variant.label}`.", "",
           f"| run (task · method · seed) | episodes | {GRID_LABEL} | {variant.label} | ATV, grid | ATV, variant |",
           "|---|---|---|---|---|---|"]
     md += [f"| {k.replace('|', ' · ')} | {done[k]['episodes']} | {done[k]['grid'] * 100:.0f} % "
