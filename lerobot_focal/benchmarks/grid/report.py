@@ -411,6 +411,7 @@ def write_report(out_dir: Path) -> Path:
     md += ["## Goals, measured side by side in this grid", ""] + _goals(records, tasks, methods, label) + [""]
     md += ["## Plots", "", "![learning curves](learning_curves.png)", "", "![success](success_bars.png)", "",
            "![compounding error](compounding_error.png)", ""]
+    md += _learning_efficiency_section(records, tasks, methods, label, preset)
     md += _diagnostics(out_dir)
     (out_dir / "report.md").write_text("\n".join(md))
     summary = {"grid": grid, "methods": summary_table(records, grid), "aggregate": agg}
@@ -527,6 +528,78 @@ def _plots(out_dir: Path, agg: dict, records: list[RunRecord], tasks: list[str],
     ax.legend(fontsize=7)
     ax.grid(axis="y", alpha=0.3)
     save_png(fig, out_dir / "success_bars.png", dpi=100)
+    _plot_learning_efficiency(out_dir, records, tasks, methods, label, preset)
+
+
+def learning_efficiency(records: list[RunRecord], tasks: list[str], method: str, batch_size: int) -> dict | None:
+    """The method's success at each evaluation, averaged over the tasks and seeds it has every task of, against
+    the training samples seen (step × batch) and the wall-clock minutes spent (each run's wall time, training
+    and periodic evaluations, prorated by step: the runs log no time per evaluation). None without a whole seed.
+
+    This is the paper's learning-efficiency comparison: how much data and how much time a method needs to
+    reach a success rate, beside what it reaches."""
+    by_seed: dict[int, dict[str, RunRecord]] = defaultdict(dict)
+    for r in records:
+        if r.method == method and r.task in tasks and r.curve:
+            by_seed[r.seed][r.task] = r
+    runs = [r for seed_runs in by_seed.values() if len(seed_runs) == len(tasks) for r in seed_runs.values()]
+    if not runs:
+        return None
+    n = min(len(r.curve) for r in runs)
+    steps = np.array([c["step"] for c in runs[0].curve[:n]], dtype=float)
+    success = np.mean([[c["success"] for c in r.curve[:n]] for r in runs], axis=0)
+    minutes = np.mean([[c["step"] / r.curve[-1]["step"] * (r.wall_s or math.nan) / 60 for c in r.curve[:n]]
+                       for r in runs], axis=0)
+    return {"samples": (steps * batch_size).tolist(), "minutes": minutes.tolist(), "success": success.tolist(),
+            "runs": len(runs)}
+
+
+def _learning_efficiency_section(records: list[RunRecord], tasks: list[str], methods: list[str], label: dict,
+                                 preset: dict) -> list[str]:
+    rows = []
+    for m in methods:
+        e = learning_efficiency(records, tasks, m, preset["batch_size"])
+        if e is None:
+            continue
+        best = max(e["success"])
+        # The first evaluation at 90 % of the method's own best mean success: how soon it gets most of the way.
+        i = next(k for k, v in enumerate(e["success"]) if v >= 0.9 * best)
+        rows.append(f"| {label[m]} | {e['runs']} | {best * 100:.1f} | {e['samples'][i] / 1e3:.0f} k | "
+                    f"{e['minutes'][i]:.1f} |")
+    if not rows:
+        return []
+    return ["## Learning efficiency", "",
+            "Success at each periodic evaluation, averaged over the tasks and over the seeds that have every task, "
+            "against training samples (step × batch) and against wall-clock minutes (each run's wall time prorated by "
+            "step; runs shared the machine, so compare methods of one grid only). The table: the best of that mean "
+            "curve and the samples and minutes of the first evaluation at 90 % of it.", "",
+            "| Method | runs | best mean success (%) | samples to 90 % of it | minutes to 90 % of it |",
+            "|---|---|---|---|---|", *rows, "", "![learning efficiency](learning_efficiency.png)", ""]
+
+
+def _plot_learning_efficiency(out_dir: Path, records: list[RunRecord], tasks: list[str], methods: list[str],
+                              label: dict, preset: dict) -> None:
+    import matplotlib.pyplot as plt
+
+    curves = {m: e for m in methods if (e := learning_efficiency(records, tasks, m, preset["batch_size"]))}
+    if not curves:
+        return
+    fig, (by_samples, by_time) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for i, m in enumerate(methods):
+        if m in curves:
+            e = curves[m]
+            by_samples.plot(np.array(e["samples"]) / 1e3, np.array(e["success"]) * 100, marker=".", color=f"C{i}",
+                            label=label[m])
+            by_time.plot(e["minutes"], np.array(e["success"]) * 100, marker=".", color=f"C{i}", label=label[m])
+    by_samples.set_xlabel("training samples (thousands)")
+    by_time.set_xlabel("wall-clock minutes per run")
+    for ax in (by_samples, by_time):
+        ax.set_ylabel("success, mean over tasks (%)")
+        ax.set_ylim(-5, 105)
+        ax.grid(alpha=0.3)
+    by_samples.legend(fontsize=7)
+    fig.suptitle(f"preset {preset['name']}: learning efficiency ({', '.join(tasks)})", fontsize=9)
+    save_png(fig, out_dir / "learning_efficiency.png", dpi=100)
 
 
 def main(argv: list[str] | None = None) -> int:
