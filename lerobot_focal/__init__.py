@@ -8,7 +8,7 @@ without the optional extras.
 """
 
 from lerobot_focal import envs, robots, teleoperators  # noqa: F401  (registration side effects)
-from lerobot_focal.datasets.fast_reader import install_from_env as _install_fast_reader
+from lerobot_focal.datasets.fast_loading.fast_reader import install_from_env as _install_fast_reader
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 
 # Opt-in in-memory dataset reader (docs/data_throughput.md): a no-op unless LEROBOT_FOCAL_FAST_READER=1.

@@ -68,7 +68,7 @@ def test_importing_the_plugin_changes_nothing_global():
 
 @pytest.mark.subprocess
 def test_the_opt_in_fast_reader_is_the_one_visible_change():
-    from lerobot_focal.datasets.fast_reader import compatible
+    from lerobot_focal.datasets.fast_loading.fast_reader import compatible
 
     result = _probe(LEROBOT_FOCAL_FAST_READER="1")
     if not compatible()[0]:

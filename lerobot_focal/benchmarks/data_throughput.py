@@ -10,8 +10,8 @@ mean over ``--log_freq`` steps); the first log window of every run is dropped (w
 rest are reported, with data_s / updt_s as the figure of merit (goal <= 0.25).
 
 The fast mode sets ``LEROBOT_FOCAL_FAST_READER=1``. If the installed plugin does not yet call
-``install_from_env()`` at import, the fast runs use ``python -m lerobot_focal.datasets.fast_reader`` instead,
-which installs the reader and then calls LeRobot's ``lerobot_train.main`` unchanged; the log must show the
+``install_from_env()`` at import, the fast runs use ``python -m lerobot_focal.datasets.fast_loading.fast_reader``
+instead, which installs the reader and then calls LeRobot's ``lerobot_train.main`` unchanged; the log must show the
 reader's ``fast reader: ... cached`` line or the run is reported as not accelerated.
 """
 
@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def _plugin_wires_env() -> bool:
     """Whether importing the plugin (as every lerobot-* CLI does) installs the reader when the env var is set."""
-    code = ("import lerobot_policy_focal, sys; from lerobot_focal.datasets import fast_reader as f; "
+    code = ("import lerobot_policy_focal, sys; from lerobot_focal.datasets.fast_loading import fast_reader as f; "
             "sys.exit(0 if f.is_installed() else 3)")
     env = {**os.environ, "LEROBOT_FOCAL_FAST_READER": "1"}
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
@@ -55,7 +55,7 @@ def _command(mode: str, wired: bool) -> tuple[list[str], dict[str, str]]:
     env["LEROBOT_FOCAL_FAST_READER"] = "1"
     if wired:
         return [lerobot_train], env
-    return [sys.executable, "-m", "lerobot_focal.datasets.fast_reader"], env
+    return [sys.executable, "-m", "lerobot_focal.datasets.fast_loading.fast_reader"], env
 
 
 def run_once(mode: str, wired: bool, args: argparse.Namespace, out_dir: Path) -> dict:
@@ -107,7 +107,7 @@ def item_timings(root: Path, repo_id: str, config: Path, n: int = 64) -> dict:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
     import lerobot_focal  # noqa: F401  (registers `focal`)
-    from lerobot_focal.datasets import fast_reader
+    from lerobot_focal.datasets.fast_loading import fast_reader
 
     policy_cfg = json.loads(Path(config).read_text())["policy"]
     cfg = PreTrainedConfig.get_choice_class(policy_cfg.pop("type"))(**{k: v for k, v in policy_cfg.items()})
@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="focal_data_bench_") as tmp:
         tmp = Path(tmp)
         if args.root is None:
-            from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+            from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 
             args.root = tmp / "dataset"
             write_synthetic_dataset(args.root, SyntheticSpec(num_points=512), repo_id=args.repo_id)

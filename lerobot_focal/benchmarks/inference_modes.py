@@ -340,7 +340,7 @@ def train(dataset: Path, repo_id: str, out: Path, name: str, steps: int, extra: 
 def metaworld_checkpoints(work: Path, task: str, steps: int) -> dict[str, Path]:
     root = work / "data"
     if not (root / "meta" / "info.json").is_file():
-        _run([sys.executable, "-m", "lerobot_focal.datasets.collect", "--root", str(root), "--tasks", task,
+        _run([sys.executable, "-m", "lerobot_focal.datasets.making.collect", "--root", str(root), "--tasks", task,
               "--repo_id", f"local/metaworld_{task}", "--episodes", "10", "--obs_types", "state,env_state"],
              work, work / "collect.log", f"lerobot-focal-collect {task} (10 expert episodes)")
     return {n: train(root, f"local/metaworld_{task}", work / n, n, steps, ()) for n in CHECKPOINT_ARGS}

@@ -2,7 +2,7 @@
 
 Three real processes, each showing its own progress:
 
-1. ``python -m lerobot_focal.datasets.collect``: 10 full-length scripted-expert episodes of one MetaWorld v3
+1. ``python -m lerobot_focal.datasets.making.collect``: 10 full-length scripted-expert episodes of one MetaWorld v3
    task, written as a local LeRobotDataset (a rerun reuses what is already there);
 2. ``lerobot-train --config_path=configs/focal_cpu_state.json`` (or ``focal_cpu.json`` for point clouds) with
    the plugin's in-memory reader (``LEROBOT_FOCAL_FAST_READER=1``);
@@ -69,7 +69,7 @@ def _run(cmd: list[str], log_path: Path, env_extra: dict[str, str] | None = None
 
 def collect(task: str, episodes: int, root: Path, obs: str, log: Path) -> None:
     obs_types = "state,env_state" if obs == "state" else "pointcloud"
-    _run([sys.executable, "-m", "lerobot_focal.datasets.collect", "--root", str(root), "--tasks", task,
+    _run([sys.executable, "-m", "lerobot_focal.datasets.making.collect", "--root", str(root), "--tasks", task,
           "--episodes", str(episodes), "--obs_types", obs_types], log)
 
 

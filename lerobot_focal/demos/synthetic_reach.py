@@ -22,7 +22,7 @@ import torch
 
 from lerobot_focal.console import console_script, doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
-from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 from lerobot_focal.figures import save_png
 from lerobot_focal.presets import preset_path
 

@@ -17,7 +17,7 @@ REPO_ID = "local/focal_metaworld"
 
 
 def _collect(*args, **popen):
-    cmd = [sys.executable, "-m", "lerobot_focal.datasets.collect", *args]
+    cmd = [sys.executable, "-m", "lerobot_focal.datasets.making.collect", *args]
     return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen)
 
 
@@ -117,7 +117,7 @@ def test_collect_drops_failed_episodes(tmp_path):
 
 
 def test_collect_rejects_bad_arguments(tmp_path, capsys):
-    from lerobot_focal.datasets.collect import parse_args
+    from lerobot_focal.datasets.making.collect import parse_args
 
     with pytest.raises(SystemExit) as exc:
         parse_args(["--root", str(tmp_path / "x"), "--obs_types", "depth"])

@@ -116,7 +116,7 @@ def test_unclosed_files_without_a_commit_record_are_named_with_the_salvage_comma
     assert f"lerobot-focal-salvage-dataset {root}" in rerun.stderr
 
     salvaged = tmp_path / "mw_salvaged"
-    fix = subprocess.run([sys.executable, "-m", "lerobot_focal.datasets.salvage", str(root), "--out", str(salvaged)],
-                         env=env, capture_output=True, text=True, timeout=600)
+    fix = subprocess.run([sys.executable, "-m", "lerobot_focal.datasets.repair.salvage", str(root), "--out",
+                          str(salvaged)], env=env, capture_output=True, text=True, timeout=600)
     assert fix.returncode == 0, fix.stderr[-3000:]
     assert "recovered 2 episode(s)" in fix.stdout

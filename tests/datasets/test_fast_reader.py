@@ -13,8 +13,8 @@ import torch
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_focal.datasets import fast_reader as fr
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.fast_loading import fast_reader as fr
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 
 REPO_ID = "local/fast_reader_test"
 FPS = 10
@@ -225,7 +225,7 @@ def test_lerobot_train_runs_with_the_fast_reader(pc_root, tmp_path):
     """LeRobot's own training entry point, two steps, with the reader installed by the launcher."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "WANDB_MODE": "disabled"}
     repo = Path(__file__).resolve().parents[2]
-    cmd = [sys.executable, "-m", "lerobot_focal.datasets.fast_reader",
+    cmd = [sys.executable, "-m", "lerobot_focal.datasets.fast_loading.fast_reader",
            f"--config_path={repo / 'configs/focal_cpu.json'}",
            f"--dataset.repo_id={REPO_ID}", f"--dataset.root={pc_root}", "--batch_size=8", "--steps=2", "--log_freq=1",
            "--save_checkpoint=false", f"--output_dir={tmp_path / 'out'}", "--policy.down_dims=[16,32,64]"]

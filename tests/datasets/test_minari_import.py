@@ -56,7 +56,7 @@ def _make_minari_dataset(minari_root: Path) -> list[np.ndarray]:
 
 
 def _import(minari_root, root, *extra):
-    cmd = [sys.executable, "-m", "lerobot_focal.datasets.minari_import", "--dataset_id", DATASET_ID,
+    cmd = [sys.executable, "-m", "lerobot_focal.datasets.making.minari_import", "--dataset_id", DATASET_ID,
            "--root", str(root), "--minari_root", str(minari_root), *extra]
     result = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
@@ -81,7 +81,7 @@ def test_minari_import_replays_and_filters(tmp_path):
         np.testing.assert_allclose(stored, actions[ep], atol=1e-6)
 
     # Default: only episodes whose replay succeeds; random actions never open the door (in-process this time).
-    from lerobot_focal.datasets.minari_import import ImportConfig, import_minari
+    from lerobot_focal.datasets.making.minari_import import ImportConfig, import_minari
 
     summary = import_minari(ImportConfig(dataset_id=DATASET_ID, root=tmp_path / "ok", minari_root=str(minari_root)))
     assert summary == {"task": "door", "episodes_in": 3, "written": 0, "failed": 2, "diverged": 1, "no_seed": 0}

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from lerobot.datasets import LeRobotDataset
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, features
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, episode_arrays, features
 
 pytestmark = pytest.mark.subprocess  # the salvage command
 
@@ -39,7 +39,7 @@ def test_salvage_recovers_every_saved_episode_of_an_unclosed_dataset(tmp_path):
 
     out = tmp_path / "salvaged"
     proc = subprocess.run(
-        [sys.executable, "-m", "lerobot_focal.datasets.salvage", str(killed), "--out", str(out)],
+        [sys.executable, "-m", "lerobot_focal.datasets.repair.salvage", str(killed), "--out", str(out)],
         capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -59,7 +59,7 @@ def test_salvage_recovers_every_saved_episode_of_an_unclosed_dataset(tmp_path):
 
 def test_salvage_refuses_a_folder_that_is_not_a_dataset(tmp_path):
     proc = subprocess.run(
-        [sys.executable, "-m", "lerobot_focal.datasets.salvage", str(tmp_path)], capture_output=True, text=True,
+        [sys.executable, "-m", "lerobot_focal.datasets.repair.salvage", str(tmp_path)], capture_output=True, text=True,
         timeout=120,
     )
     assert proc.returncode == 1

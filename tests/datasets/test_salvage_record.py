@@ -79,7 +79,7 @@ def test_sigkilled_recording_is_salvaged(tmp_path):
 
     out = tmp_path / "rec_salvaged"
     proc = subprocess.run(
-        [sys.executable, "-m", "lerobot_focal.datasets.salvage", str(root), "--out", str(out)],
+        [sys.executable, "-m", "lerobot_focal.datasets.repair.salvage", str(root), "--out", str(out)],
         env=_env(tmp_path), capture_output=True, text=True, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]

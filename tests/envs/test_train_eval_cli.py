@@ -55,7 +55,7 @@ def _eval(ckpt, env_args, out_dir, metrics):
 @pytest.mark.slow
 def test_collect_train_eval_metaworld(tmp_path):
     data = tmp_path / "data"
-    _run([sys.executable, "-m", "lerobot_focal.datasets.collect", "--root", str(data), "--tasks", "reach",
+    _run([sys.executable, "-m", "lerobot_focal.datasets.making.collect", "--root", str(data), "--tasks", "reach",
           "--episodes", "2"], timeout=600)
     ckpt = _train(data, tmp_path / "train")
     config = json.loads((ckpt / "config.json").read_text())
@@ -84,7 +84,7 @@ def test_minari_import_train_eval_adroit(tmp_path):
 
     _make_minari_dataset(tmp_path / "minari")
     data = tmp_path / "data"
-    _run([sys.executable, "-m", "lerobot_focal.datasets.minari_import", "--dataset_id", DATASET_ID, "--root",
+    _run([sys.executable, "-m", "lerobot_focal.datasets.making.minari_import", "--dataset_id", DATASET_ID, "--root",
           str(data), "--minari_root", str(tmp_path / "minari"), "--all_episodes"], timeout=600)
     ckpt = _train(data, tmp_path / "train", repo_id="local/focal_adroit")
     assert "observation.pointcloud" in json.loads((ckpt / "config.json").read_text())["input_features"]

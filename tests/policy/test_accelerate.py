@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 from lerobot_focal.policy import FocalPolicy
 
 from .accelerate_probe import sha

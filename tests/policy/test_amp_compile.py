@@ -74,7 +74,7 @@ def amp_metaworld_run(tmp_path_factory):
     pytest.importorskip("metaworld")
     tmp = tmp_path_factory.mktemp("amp")
     data = tmp / "data"
-    _run([sys.executable, "-m", "lerobot_focal.datasets.collect", "--root", str(data), "--tasks", "reach",
+    _run([sys.executable, "-m", "lerobot_focal.datasets.making.collect", "--root", str(data), "--tasks", "reach",
           "--episodes", "1", "--until", "success", "--obs_types", "state,env_state"], cwd=tmp)
     ckpt, log = _train(data, "local/focal_metaworld", tmp / "train", "--policy.use_amp=true")
     return tmp, ckpt, log

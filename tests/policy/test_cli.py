@@ -19,7 +19,7 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 from lerobot_focal.policy import FocalPolicy
 
 pytestmark = pytest.mark.subprocess  # real lerobot-train runs
@@ -68,7 +68,7 @@ def test_train_saves_checkpoints_with_processors(trained_run):
     assert "focal" in log
     # LEROBOT_FOCAL_FAST_READER=1 reached lerobot-train via the plugin; on a LeRobot whose reader differs from the
     # verified one (e.g. its main branch, docs/compatibility.md) it says so and training reads the stock way.
-    from lerobot_focal.datasets.fast_reader import compatible
+    from lerobot_focal.datasets.fast_loading.fast_reader import compatible
 
     assert ("columns cached in memory" if compatible()[0] else "fast reader NOT installed") in log
     for step in ("000002", "000004"):

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from lerobot.configs.policies import PreTrainedConfig
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 
 from ..cli import assert_config_error, run_lerobot
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, features
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, episode_arrays, features
 
 pytestmark = pytest.mark.subprocess  # lerobot-train on a poisoned dataset
 

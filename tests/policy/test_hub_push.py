@@ -14,7 +14,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 
 pytestmark = pytest.mark.subprocess  # lerobot-train and lerobot-focal-collect up to the (stubbed) upload
 
@@ -75,7 +75,7 @@ def test_train_pushes_a_folder_that_loads_back_with_a_focal_model_card(tmp_path)
 def test_collect_push_to_hub_uploads_the_finished_dataset(tmp_path):
     pytest.importorskip("metaworld")
     hub = tmp_path / "hub"
-    cmd = [sys.executable, "-m", "lerobot_focal.datasets.collect", "--root", str(tmp_path / "mw"),
+    cmd = [sys.executable, "-m", "lerobot_focal.datasets.making.collect", "--root", str(tmp_path / "mw"),
            "--repo_id", "someone/mw_reach", "--tasks", "reach", "--episodes", "1", "--obs_types", "state",
            "--push_to_hub"]
     proc = subprocess.run(cmd, cwd=tmp_path, env=_env(hub), capture_output=True, text=True, timeout=600)

@@ -18,7 +18,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, episode_arrays, write_synthetic_dataset
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 
 pytestmark = pytest.mark.heavy  # a short in-process training run, about 2.5 minutes on 2 cores

@@ -15,7 +15,7 @@ import torch
 from lerobot.configs import train as lerobot_train_config
 from lerobot.policies.pretrained import PreTrainedPolicy
 
-from lerobot_focal.datasets.synthetic import SyntheticSpec, write_synthetic_dataset
+from lerobot_focal.datasets.making.synthetic import SyntheticSpec, write_synthetic_dataset
 from lerobot_focal.policy.lerobot_compat import refuse_stacked_ema, running_train_config
 from tests.policy.helpers import small_policy
 

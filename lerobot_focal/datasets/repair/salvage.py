@@ -10,7 +10,7 @@ saved episodes, a data file without its footer and no episode index: LeRobot can
 every saved episode are in the data file, one row group per episode, and their camera videos were encoded
 when the episode was saved.
 
-This command (1) rebuilds the data files' footers (:mod:`lerobot_focal.datasets.parquet_footer`), keeping
+This command (1) rebuilds the data files' footers (:mod:`lerobot_focal.datasets.repair.parquet_footer`), keeping
 each complete row group; (2) places every recovered episode in the video files, in order, by its length;
 (3) opens that as a read-only LeRobotDataset and writes its episodes, frame by frame, into a new dataset with
 LeRobot's own writer, which computes the statistics and the episode index anew. The source folder is never
@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lerobot_focal.console import doc_parser
-from lerobot_focal.datasets.parquet_footer import FooterRebuildError, rebuild_footer
+from lerobot_focal.datasets.repair.parquet_footer import FooterRebuildError, rebuild_footer
 
 logger = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """A minimal reader and writer of Thrift's compact protocol, the encoding of Parquet's page headers and footer.
 
-Only what :mod:`lerobot_focal.datasets.parquet_footer` needs to rebuild a footer: structs are read into
+Only what :mod:`lerobot_focal.datasets.repair.parquet_footer` needs to rebuild a footer: structs are read into
 ``{field_id: (type, value)}`` dicts that keep each field's wire type, so they can be edited and written back.
 Lists are ``(element_type, [values])``; maps ``(key_type, value_type, [(k, v), ...])``.
 

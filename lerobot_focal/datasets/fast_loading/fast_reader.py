@@ -18,7 +18,7 @@ Opt in (nothing changes unless one of these is used):
 
 * ``LEROBOT_FOCAL_FAST_READER=1 lerobot-train ...`` once the plugin's ``__init__`` calls
   :func:`install_from_env` (every lerobot-* CLI imports the plugin before it builds the dataset);
-* ``python -m lerobot_focal.datasets.fast_reader <lerobot-train arguments>``: installs, then runs LeRobot's
+* ``python -m lerobot_focal.datasets.fast_loading.fast_reader <lerobot-train arguments>``: installs, then runs LeRobot's
   own ``lerobot.scripts.lerobot_train.main`` unchanged;
 * in Python: :func:`install` / :func:`uninstall`, or ``with enabled(): ...``.
 
@@ -39,7 +39,7 @@ import os
 import sys
 from typing import Any
 
-from lerobot_focal.datasets.tensor_cache import _cache_is_current, _rows, build_cache
+from lerobot_focal.datasets.fast_loading.tensor_cache import _cache_is_current, _rows, build_cache
 
 logger = logging.getLogger(__name__)
 
@@ -226,8 +226,8 @@ def install_from_env() -> bool:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lerobot_focal.datasets.fast_reader <lerobot-train args>``: LeRobot's training entry point
-    with the fast reader installed first (the loop itself is LeRobot's, unchanged)."""
+    """``python -m lerobot_focal.datasets.fast_loading.fast_reader <lerobot-train args>``: LeRobot's training entry
+    point with the fast reader installed first (the loop itself is LeRobot's, unchanged)."""
     args = sys.argv[1:] if argv is None else argv
     install(force=os.environ.get(ENV_VAR, "").strip().lower() == "force")
     from lerobot.scripts.lerobot_train import main as lerobot_train_main

@@ -1,6 +1,6 @@
 """Import Adroit demonstrations from a local Minari dataset into a LeRobotDataset with focal observations.
 
-    python -m lerobot_focal.datasets.minari_import --dataset_id adroit/door/expert-v0 --root data/adroit_door
+    python -m lerobot_focal.datasets.making.minari_import --dataset_id adroit/door/expert-v0 --root data/adroit_door
 
 Minari stores gymnasium-robotics' own observation vector and the actions, not point clouds or camera frames.
 Each episode is therefore *replayed* in ``focal_adroit``'s simulator from its recorded reset seed, and the

@@ -1,7 +1,7 @@
 """The in-memory tensor cache of one LeRobot ``DatasetReader``: its numeric columns as torch tensors.
 
 Built once per reader, when LeRobot loads the (already episode-filtered) HF dataset, by
-:mod:`lerobot_focal.datasets.fast_reader`, which patches LeRobot's reader to gather frames and their
+:mod:`lerobot_focal.datasets.fast_loading.fast_reader`, which patches LeRobot's reader to gather frames and their
 delta-timestamp windows from it by tensor indexing. Columns that are not plain numeric arrays (images,
 language) are left out and keep LeRobot's formatted path. A dataset larger than
 ``LEROBOT_FOCAL_FAST_READER_MAX_MB`` (default 4096) is not cached.
