@@ -11,6 +11,8 @@
     lerobot-focal-bench tau-profile --out DIR           (where along the flow focal's one-step map is wrong)
     lerobot-focal-bench variant-eval --variant V --out DIR  (a grid's final checkpoints, another inference setting)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
+    lerobot-focal-bench camera-step [--clouds DATASET]  (a point-cloud / image training step against a low-dim one:
+                                                        bf16 autocast, channels-last, fewer points; loss curves)
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
     lerobot-focal-bench cloud-content [--tasks ...]     (what a MetaWorld cloud's points fall on: table, arm, objects)
@@ -45,6 +47,7 @@ _DELEGATED = {
     "allocator": "lerobot_focal.benchmarks.allocator",
     "train-step": "lerobot_focal.benchmarks.train_step",
     "amp-compile": "lerobot_focal.benchmarks.amp_compile",
+    "camera-step": "lerobot_focal.benchmarks.camera_step",
     "inference-modes": "lerobot_focal.benchmarks.inference_modes",
 }
 
@@ -81,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("variant-eval", add_help=False, help="a grid's final checkpoints with another inference setting "
                                                          "on the same fresh episodes")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
+    sub.add_parser("camera-step", add_help=False, help="a point-cloud or image training step against a low-dim one, "
+                                                        "and cheaper variants with their loss curves")
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "
                                                          "and the task's objects, env crop vs the previous box")

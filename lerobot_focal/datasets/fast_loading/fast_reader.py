@@ -39,7 +39,7 @@ import os
 import sys
 from typing import Any
 
-from lerobot_focal.datasets.fast_loading.tensor_cache import _cache_is_current, _rows, build_cache
+from lerobot_focal.datasets.fast_loading.tensor_cache import build_cache, cache_is_current, cache_rows
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +77,7 @@ def _build_index_mapping(self) -> None:
 def get_item(self, idx) -> dict:
     """``DatasetReader.get_item`` reading from the tensor cache; same keys, order, dtypes and values."""
     cache = getattr(self, "_focal_cache", None)
-    if not _cache_is_current(self, cache):
+    if not cache_is_current(self, cache):
         return _ORIGINALS["DatasetReader.get_item"](self, idx)
     cols = cache.columns
 
@@ -100,7 +100,7 @@ def get_item(self, idx) -> dict:
             if key in self._meta.video_keys:
                 continue
             if key in cols:
-                query_result[key] = cols[key].index_select(0, _rows(cache, clamped))
+                query_result[key] = cols[key].index_select(0, cache_rows(cache, clamped))
             else:  # uncached column: LeRobot's own query, on LeRobot's own dataset
                 query_result.update(self._query_hf_dataset({key: clamped.tolist()}))
         item = {**item, **padding}
@@ -113,7 +113,7 @@ def get_item(self, idx) -> dict:
         for key in self._meta.video_keys:
             if query_indices is not None and key in query_indices:
                 if "timestamp" in cols:
-                    query_timestamps[key] = cols["timestamp"][_rows(cache, query_indices[key])].tolist()
+                    query_timestamps[key] = cols["timestamp"][cache_rows(cache, query_indices[key])].tolist()
                 else:
                     query_timestamps.update(
                         self._get_query_timestamps(current_ts, {key: query_indices[key].tolist()})

@@ -162,7 +162,9 @@ def build_cache(reader: Any, stock_transform: Any) -> TensorCache | None:
     )
 
 
-def _cache_is_current(reader: Any, cache: TensorCache | None) -> bool:
+def cache_is_current(reader: Any, cache: TensorCache | None) -> bool:
+    """Whether `cache` still mirrors the reader's dataset: the same table, default dtype and transform (a
+    reader whose dataset LeRobot replaced or re-formatted must rebuild it)."""
     return (
         cache is not None
         and cache.source is reader.hf_dataset
@@ -171,7 +173,9 @@ def _cache_is_current(reader: Any, cache: TensorCache | None) -> bool:
     )
 
 
-def _rows(cache: TensorCache, abs_indices: torch.Tensor) -> torch.Tensor:
+def cache_rows(cache: TensorCache, abs_indices: torch.Tensor) -> torch.Tensor:
+    """The cache's rows of the dataset's absolute frame indices (a dataset restricted to some episodes keeps
+    only theirs); an index outside them raises KeyError, as the stock reader's lookup does."""
     if cache.rel_of_abs is None:
         return abs_indices
     rel = cache.rel_of_abs[abs_indices]
