@@ -36,7 +36,8 @@ def reports_config_errors(label: str, error: type[ConfigError] = ConfigError) ->
 
     `label` is what the user typed to choose the config (e.g. ``"--env.type=focal_metaworld"``), so the message
     says which of the several configs of one command line is wrong. A `ConfigError` raised directly gets the
-    prefix too.
+    prefix too. A subclass of a decorated config (``dp3`` of ``diffusion_ema``) says its parent's errors under
+    its own label: the user typed the subclass's.
     """
 
     def decorate(cls: T) -> T:
@@ -51,14 +52,21 @@ def reports_config_errors(label: str, error: type[ConfigError] = ConfigError) ->
             except ConfigError as e:
                 if isinstance(e, error) and str(e).startswith(label):  # already said by a nested call
                     raise
-                raise error(f"{label}: {e}") from e
+                raise _labelled(error, label, getattr(e, "reason", str(e))) from e
             except (ValueError, TypeError) as e:
-                raise error(f"{label}: {e}") from e
+                raise _labelled(error, label, str(e)) from e
 
         cls.__post_init__ = checked_post_init
         return cls
 
     return decorate
+
+
+def _labelled(error: type[ConfigError], label: str, reason: str) -> ConfigError:
+    """`error` saying `reason` under `label`; the bare reason is kept for a subclass's label (see above)."""
+    labelled = error(f"{label}: {reason}")
+    labelled.reason = reason
+    return labelled
 
 
 # --- range checks shared by the configs: each raises a ValueError naming the field and the valid range -----

@@ -84,6 +84,47 @@ class FocalConfigError(ConfigError):
 assert set(PAPER_METHOD) >= {k for fields in ABLATIONS.values() for k in fields}
 
 
+def pointcloud_normalization_mapping() -> dict[str, NormalizationMode]:
+    """LeRobot's normalisation mode per feature type, as the point-cloud policies (focal, dp3) normalise."""
+    return {
+        # A point cloud is a STATE feature to LeRobot; MIN_MAX per xyz channel is DP3's "limits" normaliser.
+        "VISUAL": NormalizationMode.MEAN_STD,
+        "STATE": NormalizationMode.MIN_MAX,
+        # observation.environment_state (object poses); dimensions constant in the demos keep a unit scale
+        # (see stats.widen_degenerate_min_max).
+        "ENV": NormalizationMode.MIN_MAX,
+        "ACTION": NormalizationMode.MIN_MAX,
+    }
+
+
+def check_feature_shapes(config: PreTrainedConfig, policy: str) -> None:
+    """The shapes of what a point-cloud policy (focal, dp3) reads, before its encoder is sized from them.
+
+    `config` names what it reads with ``used_pointcloud_key`` / ``used_state_key`` / ``used_env_state_key`` (None:
+    not read) and ``use_pointcloud_color``. A ValueError names the feature, its shape and the one expected.
+    """
+    action = config.output_features.get(ACTION) if config.output_features else None
+    if action is None or action.type is not FeatureType.ACTION or len(action.shape) != 1:
+        raise ValueError(
+            f"{policy} needs a 1-D '{ACTION}' output feature; got {action}. Check the dataset's "
+            "'action' feature (shape (d,))."
+        )
+    pc = config.used_pointcloud_key
+    if pc:
+        shape = tuple(config.input_features[pc].shape)
+        if len(shape) != 2 or shape[1] not in (3, 6):
+            raise ValueError(
+                f"'{pc}' must have shape (num_points, 3) for xyz or (num_points, 6) for xyz+rgb; got {shape}."
+            )
+        if config.use_pointcloud_color and shape[1] != 6:
+            raise ValueError(f"use_pointcloud_color=true needs a (P, 6) point cloud; '{pc}' has shape {shape}.")
+    for key in (config.used_state_key, config.used_env_state_key):
+        if key and len(config.input_features[key].shape) != 1:
+            raise ValueError(
+                f"'{key}' must be a flat vector (D,); got shape {tuple(config.input_features[key].shape)}."
+            )
+
+
 @PreTrainedConfig.register_subclass("focal")
 @reports_config_errors("--policy.type=focal", FocalConfigError)
 @dataclass
@@ -203,17 +244,7 @@ class FocalConfig(PreTrainedConfig):
     # (LeRobot's edge padding, the same as DP3's replicate padding).
     drop_n_last_frames: int | None = None
 
-    normalization_mapping: dict[str, NormalizationMode] = field(
-        default_factory=lambda: {
-            # A point cloud is a STATE feature to LeRobot; MIN_MAX per xyz channel is DP3's "limits" normaliser.
-            "VISUAL": NormalizationMode.MEAN_STD,
-            "STATE": NormalizationMode.MIN_MAX,
-            # observation.environment_state (object poses); dimensions constant in the demos keep a unit scale
-            # (see stats.widen_degenerate_min_max).
-            "ENV": NormalizationMode.MIN_MAX,
-            "ACTION": NormalizationMode.MIN_MAX,
-        }
-    )
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=pointcloud_normalization_mapping)
 
     # --- observations --------------------------------------------------------------------------------------
     pointcloud_key: str = OBS_POINTCLOUD
@@ -577,12 +608,7 @@ class FocalConfig(PreTrainedConfig):
         return [k for k in keys if k]
 
     def validate_features(self) -> None:
-        action = self.output_features.get(ACTION) if self.output_features else None
-        if action is None or action.type is not FeatureType.ACTION or len(action.shape) != 1:
-            raise ValueError(
-                f"FocalPolicy needs a 1-D '{ACTION}' output feature; got {action}. Check the dataset's "
-                "'action' feature (shape (d,))."
-            )
+        check_feature_shapes(self, "FocalPolicy")
         if not self.used_observation_keys:
             available = sorted(self.input_features) if self.input_features else []
             raise ValueError(
@@ -591,20 +617,6 @@ class FocalConfig(PreTrainedConfig):
                 f"and, with use_env_state=true, '{OBS_ENV_STATE}'. The dataset/env provides: {available}. "
                 "Fix: record one of those keys, rename yours with --rename_map, or enable the matching use_* flag."
             )
-        pc = self.used_pointcloud_key
-        if pc:
-            shape = tuple(self.input_features[pc].shape)
-            if len(shape) != 2 or shape[1] not in (3, 6):
-                raise ValueError(
-                    f"'{pc}' must have shape (num_points, 3) for xyz or (num_points, 6) for xyz+rgb; got {shape}."
-                )
-            if self.use_pointcloud_color and shape[1] != 6:
-                raise ValueError(f"use_pointcloud_color=true needs a (P, 6) point cloud; '{pc}' has shape {shape}.")
-        for key in (self.used_state_key, self.used_env_state_key):
-            if key and len(self.input_features[key].shape) != 1:
-                raise ValueError(
-                    f"'{key}' must be a flat vector (D,); got shape {tuple(self.input_features[key].shape)}."
-                )
         images = self.used_image_keys
         if images:
             first = tuple(self.input_features[images[0]].shape)

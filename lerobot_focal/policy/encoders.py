@@ -103,7 +103,10 @@ def _rgb_encoder(config: FocalConfig, image_features: dict) -> DiffusionRgbEncod
 
 
 class ObservationEncoder(nn.Module):
-    """Encodes every used observation key for each of the n_obs steps and flattens to (B, n_obs · feat_dim)."""
+    """Encodes every used observation key for each of the n_obs steps and flattens to (B, n_obs · feat_dim).
+
+    Built from focal's config or from dp3's, which names what it reads and the widths with the same fields, so
+    the two policies condition on one encoder."""
 
     def __init__(self, config: FocalConfig):
         super().__init__()

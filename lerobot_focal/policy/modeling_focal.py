@@ -24,12 +24,11 @@ from torch import Tensor, nn
 from lerobot_focal.policy.configuration_focal import FocalConfig
 from lerobot_focal.policy.ema import ema_decay, ema_update_, frozen_copy  # noqa: F401  (ema_decay: re-exported)
 from lerobot_focal.policy.encoders import ObservationEncoder
-from lerobot_focal.policy.input_checks import check_dataset_stats
 from lerobot_focal.policy.lerobot_compat import lerobot_model_card
 from lerobot_focal.policy.network import VelocityUnet
 from lerobot_focal.policy.objective import consistency_loss
 from lerobot_focal.policy.rtc import FocalRTC, rtc_active
-from lerobot_focal.policy.stats import adapt_dataset_stats
+from lerobot_focal.policy.stats import adopt_dataset_stats
 from lerobot_focal.policy.time_samplers import sample_times
 
 
@@ -79,16 +78,7 @@ class FocalPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         if dataset_stats is not None:
-            # A NaN/inf in the data shows up as non-finite statistics: stop here, naming feature, dimension and
-            # frame, before they are adapted and silently flatten that dimension for the whole run.
-            check_dataset_stats(dataset_stats, [*config.used_observation_keys, ACTION], kwargs.get("dataset_meta"))
-            # Fine-tuning from a checkpoint (`lerobot-train --policy.path=...`), LeRobot hands this very dict to
-            # the saved normaliser as its new statistics, bypassing the processor factory: adapt it in place so
-            # the normaliser gets what focal needs (per-channel / crop-box cloud stats, constant dimensions at
-            # unit scale). Idempotent, so the factory applying it again changes nothing.
-            adapted = adapt_dataset_stats(config, dataset_stats)
-            dataset_stats.clear()
-            dataset_stats.update(adapted)
+            adopt_dataset_stats(config, dataset_stats, kwargs.get("dataset_meta"))
         # Where the weights came from, for error messages; set by _load_as_safetensor.
         self.checkpoint_file: str | None = None
         self.config = config

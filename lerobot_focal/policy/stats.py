@@ -21,8 +21,10 @@ from typing import Any
 
 import torch
 from lerobot.configs.types import PolicyFeature
+from lerobot.utils.constants import ACTION
 
 from lerobot_focal.policy.configuration_focal import FocalConfig
+from lerobot_focal.policy.input_checks import check_dataset_stats
 
 logger = logging.getLogger(__name__)
 
@@ -109,3 +111,21 @@ def adapt_dataset_stats(config: FocalConfig, stats: dict[str, dict[str, Any]]) -
         stats[key] = per_channel_pointcloud_stats(stats[key], config.input_features[key].shape[-1])
     used = {k: config.input_features[k] for k in config.used_observation_keys}
     return widen_degenerate_min_max(stats, {**used, **config.output_features}, config.normalization_mapping)
+
+
+def adopt_dataset_stats(
+    config: FocalConfig, dataset_stats: dict[str, dict[str, Any]], dataset_meta: Any = None
+) -> None:
+    """What a policy built with a dataset (`make_policy` passes `dataset_stats`) does with its statistics.
+
+    A NaN/inf in the data shows up as non-finite statistics: stop here, naming feature, dimension and frame (from
+    `dataset_meta`), before they are adapted and silently flatten that dimension for the whole run. Fine-tuning
+    from a checkpoint (`lerobot-train --policy.path=...`), LeRobot hands this very dict to the saved normaliser as
+    its new statistics, bypassing the processor factory: it is adapted in place so the normaliser gets what the
+    policy needs (per-channel / crop-box cloud stats, constant dimensions at unit scale). Idempotent, so the
+    factory applying it again changes nothing.
+    """
+    check_dataset_stats(dataset_stats, [*config.used_observation_keys, ACTION], dataset_meta)
+    adapted = adapt_dataset_stats(config, dataset_stats)
+    dataset_stats.clear()
+    dataset_stats.update(adapted)

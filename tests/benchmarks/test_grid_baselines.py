@@ -45,6 +45,33 @@ def test_diffusion_ema_gets_dp3_chunking_and_ddim_10():
         assert flag in args
 
 
+def test_dp3_gets_focal_pcs_encoder_and_cloud_with_dp3_chunking():
+    """Every flag is a DP3Config field; the cloud and the encoder widths are focal_pc's, the chunking and DDIM 10
+    diffusion_ema's, and no object poses are needed or read."""
+    import dataclasses
+
+    from lerobot_focal.benchmarks.grid.methods import given
+    from lerobot_focal.policy.dp3 import DP3Config
+
+    preset = PRESETS["cpu_fair"]
+    args = _args("dp3", preset)
+    assert args[0] == "--policy.type=dp3"
+    fields = {f.name for f in dataclasses.fields(DP3Config)}
+    assert {a.split("=")[0].removeprefix("--policy.") for a in args[1:]} <= fields
+    widths = [a for a in _args("focal_pc", preset) if "_feature_dim=" in a]
+    assert widths == ["--policy.pointcloud_feature_dim=64", "--policy.state_feature_dim=64"]
+    for flag in (*widths, "--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8",
+                 "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=10",
+                 "--policy.down_dims=[32,64,128]", "--policy.scheduler_warmup_steps=100"):
+        assert flag in args
+    assert METHODS["dp3"].obs_type_for(preset) == METHODS["focal_pc"].obs_type_for(preset) == "pointcloud"
+    assert _args("dp3", preset.with_overrides(env_state=False)) == args
+    assert not any(a.endswith("_feature_dim=64") for a in _args("dp3", PRESETS["paper"]))  # DP3's own 64 there
+    assert given("dp3", json.loads(json.dumps(preset.to_dict()))) | {"lr": ""} == {
+        "lr": "", "schedule": "cosine, 100 warm-up", "acts": "EMA weights", "chunk": "16 / 8",
+        "inputs": "512-pt cloud + 9-d state"}
+
+
 def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):
     preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),))
     assert preset.lr_for("diffusion_ema") == 3e-4 and preset.lr_for("focal") == preset.lr

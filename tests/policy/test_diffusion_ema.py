@@ -22,9 +22,8 @@ from pathlib import Path
 import pytest
 import torch
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.diffusion import DiffusionConfig, DiffusionPolicy
-from lerobot.policies.factory import get_policy_class, make_policy, make_pre_post_processors
+from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 from safetensors.torch import load_file
 
 from lerobot_focal.config_errors import ConfigError
@@ -36,7 +35,7 @@ from tests.policy.test_diffusion_fco import (
     _batch,
     _config as _fco_config,
     _write_dataset,
-    assert_same_first_action,
+    reload_and_act,
 )
 
 BIN = Path(sys.executable).parent
@@ -87,16 +86,23 @@ def test_update_follows_dp3_schedule():
     assert policy.training and not policy.ema_diffusion.training
 
 
-@pytest.mark.parametrize("use_ema_for_inference", [True, False])
-def test_inference_uses_the_ema_network(use_ema_for_inference):
-    policy = DiffusionEmaPolicy(_config(use_ema_for_inference=use_ema_for_inference))
+def parted_and_counted(policy: DiffusionEmaPolicy) -> dict[str, int]:
+    """`policy` in eval mode with EMA weights that differ from the online ones (so the two networks give different
+    chunks), and the U-Net calls of each network, counted from now on."""
     with torch.no_grad():
         for p in policy.ema_diffusion.parameters():
-            p.add_(0.1)  # the two networks now give different chunks
+            p.add_(0.1)
     calls = {"online": 0, "ema": 0}
     policy.diffusion.unet.register_forward_hook(lambda *_: calls.__setitem__("online", calls["online"] + 1))
     policy.ema_diffusion.unet.register_forward_hook(lambda *_: calls.__setitem__("ema", calls["ema"] + 1))
     policy.eval()
+    return calls
+
+
+@pytest.mark.parametrize("use_ema_for_inference", [True, False])
+def test_inference_uses_the_ema_network(use_ema_for_inference):
+    policy = DiffusionEmaPolicy(_config(use_ema_for_inference=use_ema_for_inference))
+    calls = parted_and_counted(policy)
     obs = {k: v[:1, -1] for k, v in _batch().items() if k.startswith("observation.")}
     with torch.no_grad():
         action = policy.select_action(dict(obs))
@@ -128,64 +134,76 @@ def test_config_validation_and_factory_resolution():
 STEPS = 4
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("dp_ema")
-    root, out = tmp / "dataset", tmp / "run"
-    _write_dataset(root)
+#: A tiny U-Net of LeRobot's diffusion on the CPU, not pushed anywhere.
+TINY_DIFFUSION_ARGS = (
+    "--policy.device=cpu",
+    "--policy.push_to_hub=false",
+    "--policy.down_dims=[16,32]",
+    "--policy.kernel_size=3",
+    "--policy.n_groups=4",
+    "--policy.diffusion_step_embed_dim=16",
+)
+
+
+def tiny_train_run(policy_args: list[str], root: Path, repo_id: str, out: Path, steps: int) -> None:
+    """`lerobot-train` with `policy_args` on the dataset at `root`: `steps` steps of batch 4 on one CPU thread,
+    offline, saving at the last; an AssertionError with the output's tail if it fails."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
     args = [
         str(BIN / "lerobot-train"),
-        "--policy.type=diffusion_ema",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        f"--policy.horizon={HORIZON}",
-        f"--policy.n_action_steps={N_ACT}",
-        "--policy.down_dims=[16,32]",
-        "--policy.kernel_size=3",
-        "--policy.n_groups=4",
-        "--policy.diffusion_step_embed_dim=16",
-        "--policy.num_inference_steps=4",
-        "--policy.optimizer_lr=1e-2",  # large steps, so that online and EMA weights part visibly in 4 steps
-        "--dataset.repo_id=local/dp_fco_tiny",
+        *policy_args,
+        f"--dataset.repo_id={repo_id}",
         f"--dataset.root={root}",
         f"--output_dir={out}",
-        f"--steps={STEPS}",
-        f"--save_freq={STEPS}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
         "--log_freq=1",
         "--batch_size=4",
         "--num_workers=0",
         "--wandb.enable=false",
     ]
-    proc = subprocess.run(args, cwd=tmp, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(args, cwd=out.parent, env=env, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise AssertionError(f"lerobot-train failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")
+
+
+def last_checkpoint(out: Path, steps: int) -> tuple[Path, dict, dict[str, torch.Tensor]]:
+    """The folder, config.json and weights of a run's last checkpoint, whose EMA has had one update per step."""
+    model_dir = out / "checkpoints" / "last" / "pretrained_model"
+    weights = load_file(str(model_dir / "model.safetensors"))
+    assert int(weights["ema_step"]) == steps  # update() ran after every optimizer step
+    return model_dir, json.loads((model_dir / "config.json").read_text()), weights
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("dp_ema")
+    root, out = tmp / "dataset", tmp / "run"
+    _write_dataset(root)
+    policy_args = [
+        "--policy.type=diffusion_ema",
+        *TINY_DIFFUSION_ARGS,
+        f"--policy.horizon={HORIZON}",
+        f"--policy.n_action_steps={N_ACT}",
+        "--policy.num_inference_steps=4",
+        "--policy.optimizer_lr=1e-2",  # large steps, so that online and EMA weights part visibly in 4 steps
+    ]
+    tiny_train_run(policy_args, root, "local/dp_fco_tiny", out, STEPS)
     return root, out
 
 
 @pytest.mark.subprocess
 def test_lerobot_train_diffusion_ema_checkpoint_holds_the_ema_and_reloads(trained):
     root, out = trained
-    model_dir = out / "checkpoints" / "last" / "pretrained_model"
-    saved = json.loads((model_dir / "config.json").read_text())
+    model_dir, saved, weights = last_checkpoint(out, STEPS)
     assert saved["type"] == "diffusion_ema" and saved["use_ema"] is True and saved["num_inference_steps"] == 4
-    weights = load_file(str(model_dir / "model.safetensors"))
-    assert int(weights["ema_step"]) == STEPS  # update() ran after every optimizer step
     online = {k.removeprefix("diffusion."): v for k, v in weights.items() if k.startswith("diffusion.")}
     ema = {k.removeprefix("ema_diffusion."): v for k, v in weights.items() if k.startswith("ema_diffusion.")}
     assert online.keys() == ema.keys() and online
     differing = [k for k in online if online[k].is_floating_point() and not torch.equal(online[k], ema[k])]
     assert len(differing) > len(online) // 2, "EMA weights should differ from the online ones after training"
 
-    ds = LeRobotDataset("local/dp_fco_tiny", root=root)
-    cfg = PreTrainedConfig.from_pretrained(model_dir)
-    assert isinstance(cfg, DiffusionEmaConfig)
-    cfg.pretrained_path = model_dir
-    via_factory = make_policy(cfg, ds_meta=ds.meta)  # as lerobot-train --resume / fine-tuning
-    via_base = DiffusionEmaPolicy.from_pretrained(model_dir)  # PreTrainedPolicy.from_pretrained (lerobot-eval)
-    for policy in (via_factory, via_base):
-        assert isinstance(policy, DiffusionEmaPolicy) and int(policy.ema_step) == STEPS
+    for policy in reload_and_act(model_dir, root, "local/dp_fco_tiny", DiffusionEmaPolicy):
+        assert int(policy.ema_step) == STEPS
         for k, v in policy.ema_diffusion.state_dict().items():
             torch.testing.assert_close(v, ema[k])
-    pre, post = make_pre_post_processors(cfg, pretrained_path=str(model_dir))
-    assert_same_first_action((via_factory, via_base), pre, post, ds[10])

@@ -287,21 +287,26 @@ def test_lerobot_train_diffusion_fco_checkpoint_reloads_and_acts(trained):
     state = json.loads((out / "checkpoints" / "last" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 3
 
-    ds = LeRobotDataset("local/dp_fco_tiny", root=root)
-    cfg = PreTrainedConfig.from_pretrained(model_dir)
-    assert isinstance(cfg, DiffusionFcoConfig)
-    cfg.pretrained_path = model_dir
-    via_factory = make_policy(cfg, ds_meta=ds.meta)
-    via_base = DiffusionFcoPolicy.from_pretrained(model_dir)  # PreTrainedPolicy.from_pretrained (lerobot-eval)
-    assert isinstance(via_factory, DiffusionFcoPolicy)
+    via_factory, _ = reload_and_act(model_dir, root, "local/dp_fco_tiny", DiffusionFcoPolicy)
     assert via_factory.diffusion.num_inference_steps == 4
-    pre, post = make_pre_post_processors(cfg, pretrained_path=str(model_dir))
 
-    assert_same_first_action((via_factory, via_base), pre, post, ds[10])
+
+def reload_and_act(model_dir: Path, root: Path, repo_id: str, policy_cls: type) -> tuple:
+    """A `lerobot-train` checkpoint reloaded as `--resume` and fine-tuning do (`make_policy` with the dataset) and
+    as `lerobot-eval` does (`from_pretrained`): two `policy_cls` that act alike on a frame of the dataset."""
+    ds = LeRobotDataset(repo_id, root=root)
+    cfg = PreTrainedConfig.from_pretrained(model_dir)
+    assert isinstance(cfg, policy_cls.config_class)
+    cfg.pretrained_path = model_dir
+    policies = (make_policy(cfg, ds_meta=ds.meta), policy_cls.from_pretrained(model_dir))
+    assert all(isinstance(policy, policy_cls) for policy in policies)
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(model_dir))
+    assert_same_first_action(policies, pre, post, ds[10])
+    return policies
 
 
 def assert_same_first_action(policies, pre, post, frame: dict) -> None:
-    """Each policy's first action on `frame`'s observation, same noise seed: finite, (1, ACT) and equal."""
+    """Each policy's first action on `frame`'s observation, same noise seed: finite, (1, action dim) and equal."""
     obs = {k: v[None] for k, v in frame.items() if k.startswith("observation.")}
     actions = []
     for policy in policies:
@@ -310,6 +315,6 @@ def assert_same_first_action(policies, pre, post, frame: dict) -> None:
         torch.manual_seed(0)
         with torch.no_grad():
             actions.append(post(policy.select_action(pre(dict(obs)))))
-    assert actions[0].shape == (1, ACT) and torch.isfinite(actions[0]).all()
+    assert actions[0].shape == (1, frame["action"].shape[-1]) and torch.isfinite(actions[0]).all()
     for other in actions[1:]:
         torch.testing.assert_close(actions[0], other)

@@ -60,14 +60,17 @@ class Method:
         return self.obs_type or preset.obs_type
 
 
+def _encoder_widths(preset: GridPreset) -> list[str]:
+    """focal's encoder widths where the preset sets them; dp3 takes the same flags, so both get one encoder."""
+    dim = preset.focal_encoder_dim
+    return [] if dim is None else [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
+
+
 def _focal_inputs(preset: GridPreset, obs_type: str) -> list[str]:
-    args = []
-    if preset.focal_encoder_dim is not None:
-        dim = preset.focal_encoder_dim
-        args += [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
     # With a point cloud focal reads it and the 9-d state (DP3's inputs); without one, the object poses.
     use_env_state = preset.env_state and obs_type != "pointcloud"
-    return args + [f"--policy.use_env_state={str(use_env_state).lower()}", "--policy.use_images=false"]
+    switches = [f"--policy.use_env_state={str(use_env_state).lower()}", "--policy.use_images=false"]
+    return _encoder_widths(preset) + switches
 
 
 def _require_env_state(preset: GridPreset, policy: str) -> None:
@@ -78,16 +81,24 @@ def _require_env_state(preset: GridPreset, policy: str) -> None:
         )
 
 
+#: DP/DP3's chunking: 2 observations, 16-step horizon, 8 executed; DDIM with 10 steps at inference.
+DP3_CHUNKING = (
+    "--policy.n_obs_steps=2",
+    "--policy.horizon=16",
+    "--policy.n_action_steps=8",
+    "--policy.noise_scheduler_type=DDIM",
+    "--policy.num_inference_steps=10",
+)
+
+
 def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     _require_env_state(preset, "diffusion")
-    # DP/DP3's chunking: 2 observations, 16-step horizon, 8 executed; DDIM with 10 steps at inference.
-    return [
-        "--policy.n_obs_steps=2",
-        "--policy.horizon=16",
-        "--policy.n_action_steps=8",
-        "--policy.noise_scheduler_type=DDIM",
-        "--policy.num_inference_steps=10",
-    ]
+    return list(DP3_CHUNKING)
+
+
+def _dp3_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+    # DP3 reads the cloud and the 9-d state (never the object poses), through focal's encoder at focal's widths.
+    return _encoder_widths(preset) + list(DP3_CHUNKING)
 
 
 #: ACT's chunk in a 200-step MetaWorld episode (see `_act_inputs`).
@@ -121,6 +132,7 @@ _INPUTS: dict[str, Callable[[GridPreset, str], list[str]]] = {
     "diffusion": _diffusion_inputs,
     "diffusion_fco": _diffusion_inputs,
     "diffusion_ema": _diffusion_inputs,
+    "dp3": _dp3_inputs,
     "act": _act_inputs,
 }
 #: Policy types without a U-Net or a learning-rate schedule: no --policy.down_dims / scheduler flags.
@@ -163,6 +175,8 @@ METHODS: dict[str, Method] = {
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
         # DP as its authors (and DP3's) evaluate it: an EMA copy on DP3's schedule, acting with the EMA weights.
         Method("diffusion_ema", "DP with EMA (DDIM 10)", "diffusion_ema"),
+        # DP3: diffusion_ema on the point cloud and the 9-d state, through focal's encoder (lerobot_focal.policy.dp3).
+        Method("dp3", "DP3 (512-pt cloud, DDIM 10)", "dp3", obs_type="pointcloud"),
         Method("act", "ACT", "act", own_lr=1e-5),  # ACT's default lr (its authors'), with no schedule
     ]
 }
@@ -257,9 +271,9 @@ def given(name: str, preset: dict) -> dict[str, str]:
     else:
         schedule = f"{p.schedule}, {p.warmup_steps} warm-up"
         chunk = f"{_flag(args, 'horizon')} / {_flag(args, 'n_action_steps')}"
-        acts = "EMA weights" if method.policy_type == "diffusion_ema" else "online weights (no EMA)"
+        acts = "EMA weights" if method.policy_type in ("diffusion_ema", "dp3") else "online weights (no EMA)"
     obs = method.obs_type_for(p)
     inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
-    if p.env_state and (obs != "pointcloud" or method.policy_type != "focal"):
+    if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
         inputs += " + 39-d object poses"
     return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs}

@@ -34,7 +34,11 @@ class DiffusionEmaPolicy(DiffusionPolicy):
 
     def __init__(self, config: DiffusionEmaConfig, **kwargs: Any):
         super().__init__(config, **kwargs)
-        self.ema_diffusion = frozen_copy(self.diffusion) if config.use_ema else None
+        self.init_ema()
+
+    def init_ema(self) -> None:
+        """The EMA copy of ``self.diffusion``; a subclass that builds its own network (``dp3``) calls it after."""
+        self.ema_diffusion = frozen_copy(self.diffusion) if self.config.use_ema else None
         # Number of EMA updates so far; a buffer so checkpoints and --resume keep the EMA schedule.
         self.register_buffer("ema_step", torch.zeros((), dtype=torch.long))
 
