@@ -12,14 +12,16 @@ poses) are the result, not the milliseconds. The variants:
 - ``cloud 512, bf16 autocast``: the forward under ``torch.autocast("cpu", torch.bfloat16)`` (what LeRobot's
   ``--policy.use_amp=true`` does on a CPU), for CPUs with AVX-512 BF16;
 - ``cloud 256``: half the points, a farthest-point sample of each 512-point cloud (training on fewer points);
+- ``cloud 256, bf16 autocast``: both;
 - ``image``: one RGB camera (``--image-size``, random crop ``--crop``) + state through LeRobot's ResNet-18
   encoder with group norm and spatial softmax (focal's ``use_images``);
 - ``image, channels-last``: the same network and batch in NHWC memory layout (oneDNN's preferred one);
 - ``image, bf16 autocast`` and ``image, channels-last + bf16``.
 
-Each cheaper variant is also trained side by side with its base for ``--loss-steps`` steps, from the same
-weights on the same batch with the same noise at every step, and both loss curves are plotted: a variant is
-worth keeping only if its curve stays on its base's.
+Each cheaper variant is also trained side by side with its base, from the same weights on the same batch with
+the same noise at every step (``--loss-steps`` steps for the clouds, ``--image-loss-steps`` for the images,
+whose steps cost ~25 low-dim ones), and both loss curves are plotted: a variant is worth keeping only if its
+curve stays on its base's.
 
 Writes ``camera_step_cpu.json``, ``.md`` and ``.png`` (the loss curves).
 """
@@ -44,6 +46,7 @@ from lerobot_focal.constants import OBS_POINTCLOUD
 IMAGE_KEY = "observation.images.front"
 #: (cheaper variant, the variant it must train like)
 PAIRS = (("cloud 512, bf16 autocast", "cloud 512"), ("cloud 256", "cloud 512"),
+         ("cloud 256, bf16 autocast", "cloud 512"),
          ("image, channels-last", "image"), ("image, bf16 autocast", "image"),
          ("image, channels-last + bf16", "image"))
 
@@ -101,6 +104,7 @@ def build_variants(batch: int, down_dims: tuple[int, ...], clouds: torch.Tensor,
         "cloud 512": (cloud, cloud_data, False, False),
         "cloud 512, bf16 autocast": (clone(cloud), cloud_data, True, False),
         "cloud 256": (cloud_half, half_data, False, False),
+        "cloud 256, bf16 autocast": (clone(cloud_half), half_data, True, False),
         "image": (image, image_data, False, False),
         "image, channels-last": (clone(image, True), image_data, False, True),
         "image, bf16 autocast": (clone(image), image_data, True, False),
@@ -135,23 +139,25 @@ def _nhwc(frames: torch.Tensor) -> torch.Tensor:
     return frames.flatten(0, 1).contiguous(memory_format=torch.channels_last).unflatten(0, (b, t))
 
 
-def loss_curves(variants: dict[str, tuple], steps: int) -> dict[str, list[float]]:
-    """Each variant trained `steps` steps from its weights, the noise and flow times seeded per step alike."""
+def loss_curves(variants: dict[str, tuple], steps: int, image_steps: int) -> dict[str, list[float]]:
+    """Each variant trained from its weights (`image_steps` for the image family, `steps` for the clouds), the
+    noise and flow times seeded per step alike."""
     curves = {}
     for name, (policy, data, autocast, channels_last) in variants.items():
         if name == "low-dim":
             continue
         step = training_step(copy.deepcopy(policy), data, autocast, channels_last)
         curve = []
-        for i in range(steps):
+        for i in range(image_steps if name.startswith("image") else steps):
             torch.manual_seed(1000 + i)
             curve.append(step())
         curves[name] = curve
     return curves
 
 
-def run(out: Path, batch: int = 64, repeats: int = 10, loss_steps: int = 30, clouds_root: Path | None = None,
-        image_size: int = 84, crop: int = 76, down_dims: tuple[int, ...] = (32, 64, 128)) -> dict:
+def run(out: Path, batch: int = 64, repeats: int = 10, loss_steps: int = 200, clouds_root: Path | None = None,
+        image_size: int = 84, crop: int = 76, down_dims: tuple[int, ...] = (32, 64, 128),
+        image_loss_steps: int = 40) -> dict:
     torch.set_num_threads(1)
     g = torch.Generator().manual_seed(2)
     clouds = dataset_clouds(clouds_root, batch) if clouds_root else torch.randn(batch, 2, 512, 3, generator=g)
@@ -161,16 +167,19 @@ def run(out: Path, batch: int = 64, repeats: int = 10, loss_steps: int = 30, clo
     variants = build_variants(batch, down_dims, clouds, image_size, crop)
     steps = {name: training_step(copy.deepcopy(p), d, a, c) for name, (p, d, a, c) in variants.items()}
     medians = time_ms(steps, "cpu", repeats, warmup=2)
-    curves = loss_curves(variants, loss_steps)
+    curves = loss_curves(variants, loss_steps, image_loss_steps)
     pairs = list(PAIRS)
-    tail = max(1, loss_steps // 5)
-    agreement = {a: {"base": b, "final_loss": float(np.mean(curves[a][-tail:])),
-                     "base_final_loss": float(np.mean(curves[b][-tail:]))} for a, b in pairs}
+    agreement = {}
+    for a, b in pairs:
+        tail = max(1, len(curves[a]) // 5)
+        agreement[a] = {"base": b, "steps": len(curves[a]), "final_loss": float(np.mean(curves[a][-tail:])),
+                        "base_final_loss": float(np.mean(curves[b][-tail:]))}
     for entry in agreement.values():
         entry["relative_difference"] = entry["final_loss"] / entry["base_final_loss"] - 1
     ref = medians["low-dim"]
     rows = [{"variant": n, "ms_per_step": round(ms, 1), "vs_low_dim": round(ms / ref, 2)} for n, ms in medians.items()]
-    result = {"batch": batch, "repeats": repeats, "loss_steps": loss_steps, "down_dims": list(down_dims),
+    result = {"batch": batch, "repeats": repeats, "loss_steps": loss_steps, "image_loss_steps": image_loss_steps,
+              "down_dims": list(down_dims),
               "clouds": str(clouds_root) if clouds_root else None, "image_size": image_size, "crop": crop,
               "threads": 1, "machine": platform.processor() or platform.machine(), "rows": rows,
               "loss_agreement": agreement, "loss_curves": curves}
@@ -192,11 +201,11 @@ def render(result: dict) -> str:
           "The ratio to the low-dimensional step is the number to read (the machine may be shared).", "",
           "| variant | ms / step | × the low-dim step |", "|---|---|---|"]
     md += [f"| {r['variant']} | {r['ms_per_step']:.1f} | {r['vs_low_dim']:.2f}× |" for r in result["rows"]]
-    md += ["", f"Loss after {result['loss_steps']} steps side by side (mean of the last fifth; same weights, batch "
-               "and noise), each cheaper variant against its base ([curves](camera_step_cpu.png)):", "",
-           "| variant | its base | loss | base's loss | difference |", "|---|---|---|---|---|"]
-    md += [f"| {a} | {e['base']} | {e['final_loss']:.4f} | {e['base_final_loss']:.4f} | "
-           f"{e['relative_difference'] * 100:+.1f} % |" for a, e in result["loss_agreement"].items()]
+    md += ["", "Each cheaper variant trained side by side with its base (same weights, batch and noise at every step): "
+               "the loss, mean of the last fifth of the steps ([curves](camera_step_cpu.png)):", "",
+           "| variant | its base | steps | loss | base's loss | difference |", "|---|---|---|---|---|---|"]
+    md += [f"| {a} | {e['base']} | {e['steps']} | {e['final_loss']:.4f} | {e['base_final_loss']:.4f} | "
+           f"{e['relative_difference'] * 100:+.2f} % |" for a, e in result["loss_agreement"].items()]
     return "\n".join(md) + "\n"
 
 
@@ -210,10 +219,12 @@ def _plot(path: Path, curves: dict[str, list[float]], pairs: list[tuple[str, str
 
     fig, axes = plt.subplots(1, len(pairs), figsize=(3.4 * len(pairs), 3.0), squeeze=False)
     for ax, (a, b) in zip(axes.flat, pairs, strict=True):
-        ax.plot(curves[b], color="C0", label=b)
-        ax.plot(curves[a], color="C1", ls="--", label=a)
+        window = max(1, len(curves[a]) // 10)  # the per-step noise draw dominates a single step's loss
+        for name, color, style in ((b, "C0", "-"), (a, "C1", "--")):
+            smooth = np.convolve(curves[name][: len(curves[a])], np.ones(window) / window, mode="valid")
+            ax.plot(np.arange(len(smooth)) + window, smooth, color=color, ls=style, label=name)
         ax.set_xlabel("training step")
-        ax.set_ylabel("loss")
+        ax.set_ylabel(f"loss, running mean of {window}")
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     fig.suptitle("cheaper camera-input steps against their base: same weights, batch and noise", fontsize=9)
@@ -224,7 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     p = doc_parser(__doc__, "lerobot-focal-bench camera-step")
     p.add_argument("--batch", type=int, default=64)
     p.add_argument("--repeats", type=int, default=10)
-    p.add_argument("--loss-steps", type=int, default=30)
+    p.add_argument("--loss-steps", type=int, default=200, help="steps each cloud variant trains beside its base")
+    p.add_argument("--image-loss-steps", type=int, default=40, help="steps each image variant trains beside its base")
     p.add_argument("--clouds", type=Path, default=None, metavar="DATASET_ROOT",
                    help="take the clouds from this LeRobotDataset (e.g. a grid's point-cloud demos); Gaussian noise "
                         "otherwise, whose clouds have more max-pool winners than a scene's")
@@ -232,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--crop", type=int, default=76)
     p.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
     args = p.parse_args(argv)
-    run(args.out, args.batch, args.repeats, args.loss_steps, args.clouds, args.image_size, args.crop)
+    run(args.out, args.batch, args.repeats, args.loss_steps, args.clouds, args.image_size, args.crop,
+        image_loss_steps=args.image_loss_steps)
     return 0
 
 
