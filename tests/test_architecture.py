@@ -86,7 +86,7 @@ def _circles(top_level_only: bool) -> list[set[str]]:
 def test_the_analysis_sees_imports_names_and_circles():
     """The checks below can fail: the reader finds the imports, names and the one circle it must find."""
     imports = dict(_imports("lerobot_focal.benchmarks.grid.methods", top_level_only=True))
-    assert "GridPreset" in imports["lerobot_focal.benchmarks.grid.presets"]
+    assert "GridPreset" in imports["lerobot_focal.benchmarks.grid.grid_presets"]
     assert LAZY_CIRCLES_ALLOWED[0] in _circles(top_level_only=False)
 
 

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from lerobot_focal.benchmarks.allocator import main as allocator_main
-from lerobot_focal.benchmarks.grid.presets import PRESETS
+from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
 from lerobot_focal.benchmarks.grid.run import MALLOC_ENV, child_env
 
 

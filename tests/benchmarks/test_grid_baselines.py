@@ -10,8 +10,8 @@ import pytest
 
 from lerobot_focal.benchmarks.grid import driver
 from lerobot_focal.benchmarks.grid.driver import build_specs, merged_grid, parse_args
+from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
 from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK, METHODS, resolve_method_phases
-from lerobot_focal.benchmarks.grid.presets import PRESETS
 from lerobot_focal.benchmarks.grid.results import ResultsFile
 from tests.benchmarks.test_grid_runs import TINY_ARGS, work  # noqa: F401  (the module's tiny reach datasets)
 

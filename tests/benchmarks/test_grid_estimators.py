@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_focal.benchmarks.grid.presets import PRESETS
+from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
 from lerobot_focal.benchmarks.grid.results import ResultsFile
 from lerobot_focal.benchmarks.grid.seeds import (
     RESCORE_BLOCKS,

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from lerobot_focal.benchmarks.grid import driver
-from lerobot_focal.benchmarks.grid.datasets import ensure_task_data
-from lerobot_focal.benchmarks.grid.presets import PRESETS
+from lerobot_focal.benchmarks.grid.demos import ensure_task_data
+from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
 from lerobot_focal.benchmarks.grid.results import ResultsFile
 from lerobot_focal.benchmarks.grid.run import RunSpec
 
@@ -100,7 +100,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
 
 def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     pytest.importorskip("ray")
-    from lerobot_focal.benchmarks.grid.datasets import task_data
+    from lerobot_focal.benchmarks.grid.demos import task_data
     from lerobot_focal.benchmarks.grid.executors import run_ray
 
     preset = PRESETS["cpu"].with_overrides(**TINY)

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
 from lerobot_focal.benchmarks.grid.methods import METHODS, resolve_method_phases, resolve_methods
 from lerobot_focal.benchmarks.grid.metrics import (
     compounding_error,
@@ -16,7 +17,6 @@ from lerobot_focal.benchmarks.grid.metrics import (
     trajectory_smoothness,
     ts_score,
 )
-from lerobot_focal.benchmarks.grid.presets import PRESETS
 from lerobot_focal.benchmarks.grid.results import ResultsFile, RunRecord
 from lerobot_focal.policy.configuration_focal import ABLATIONS
 
@@ -288,7 +288,7 @@ def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
 
 def test_demo_heldout_and_evaluation_seeds_never_overlap():
     """A MetaWorld reset seed fixes the object placement: evaluating on a demo's seed evaluates on training data."""
-    from lerobot_focal.benchmarks.grid.datasets import HELDOUT_SEED
+    from lerobot_focal.benchmarks.grid.demos import HELDOUT_SEED
     from lerobot_focal.benchmarks.grid.run import FINAL_EVAL_SEED
     from lerobot_focal.benchmarks.grid.seeds import EXPERT_GAP_SEED
     from lerobot_focal.datasets.making.collect import ATTEMPTS_PER_EPISODE
@@ -437,7 +437,7 @@ def test_tau_profile_pairs_runs_by_task_and_seed_with_geometric_mean_ratios():
 def test_preset_from_dict_round_trips_and_reads_older_grids(tmp_path):
     """grid.json's preset rebuilds the very preset (overrides included); a grid recorded before a field existed
     gets the field's default; a key that is no field is refused by name."""
-    from lerobot_focal.benchmarks.grid.presets import PRESETS, GridPreset
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS, GridPreset
     from lerobot_focal.benchmarks.grid.specs import specs_of_grid
 
     for preset in PRESETS.values():
@@ -470,9 +470,9 @@ def test_gripper_variant_snaps_to_the_two_levels_of_the_runs_own_demos(tmp_path)
     and refuses demos whose grip command takes more than two values."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_focal.benchmarks.grid.datasets import TaskData
+    from lerobot_focal.benchmarks.grid.demos import TaskData
     from lerobot_focal.benchmarks.grid.diagnostics.variant_eval import VARIANTS, demo_gripper_levels
-    from lerobot_focal.benchmarks.grid.presets import PRESETS
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
     from lerobot_focal.benchmarks.grid.specs import RunSpec
 
     def spec_with_grips(name: str, grips: list[float]) -> RunSpec:
@@ -499,7 +499,7 @@ def test_gripper_variant_snaps_to_the_two_levels_of_the_runs_own_demos(tmp_path)
 def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path):
     """The mean curve over tasks and whole seeds, against step × batch and prorated wall time; a seed missing a
     task is left out; the report shows the table and writes the plot."""
-    from lerobot_focal.benchmarks.grid.presets import PRESETS
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
     from lerobot_focal.benchmarks.grid.report import learning_efficiency, write_report
 
     def record(task, method, seed, successes, wall_s):

@@ -2,10 +2,10 @@
 
 Modules, one job each, in the order a run meets them:
 
-* ``presets``  — the CPU and paper scales (steps, evaluation cadence, network size, observations, schedule);
+* ``grid_presets`` — the CPU and paper scales (steps, evaluation cadence, network size, observations, schedule);
 * ``methods``  — every method of the comparison as `lerobot-train` arguments, each describing itself to the report;
 * ``seeds``    — every reset-seed range a run uses, by purpose, and the check that none overlap;
-* ``datasets`` — expert demonstrations per task (training and held-out), made once and shared by all runs;
+* ``demos``    — expert demonstrations per task (training and held-out), made once and shared by all runs;
 * ``specs``    — the runs of a grid (``RunSpec``), from the command line or from a results folder's ``grid.json``;
 * ``run``      — one run: train with periodic evaluation, then the checkpoint metrics; returns a ``RunRecord``;
 * ``resume``   — where an interrupted run continues from (LeRobot's checkpoints and ``--resume``);

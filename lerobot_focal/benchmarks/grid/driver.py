@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 
 from ...console import doc_parser
+from .grid_presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
 from .methods import resolve_method_phases
-from .presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
 from .results import ResultsFile, RunRecord
 from .run import resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges

@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .presets import SCHEDULES, GridPreset
+from .grid_presets import SCHEDULES, GridPreset
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ import numpy as np
 
 from ...figures import save_png
 from ..paper_results import PAPER_FOCAL_METAWORLD as PAPER_FOCAL_TOP5
+from .grid_presets import capped_seeds
 from .methods import METHODS, given
 from .metrics import mean_curve, mean_std, paired_difference
-from .presets import capped_seeds
 from .results import ResultsFile, RunRecord
 
 PAPER_MARGIN = 10.0  # points: focal's top-5 within this of the paper on each task

@@ -20,10 +20,10 @@ from pathlib import Path
 
 from lerobot_focal.console import console_script
 
-from .datasets import collect_task_data
+from .demos import collect_task_data
+from .grid_presets import GridPreset
 from .methods import METHODS
 from .metrics import eval_curve, top_k_mean
-from .presets import GridPreset
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import RunRecord
 from .resume import (

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ...datasets.making.collect import ATTEMPTS_PER_EPISODE
-from .presets import DEMO_SEED, DEMO_SEED_END, GridPreset
+from .grid_presets import DEMO_SEED, DEMO_SEED_END, GridPreset
 
 #: The fresh periodic evaluations of seed k start at PERIODIC_FRESH_SEED + PERIODIC_FRESH_BLOCK·k: above every
 #: other range, with room for PERIODIC_FRESH_BLOCK episodes per seed (the paper's 24 × 20 = 480 need a twentieth).

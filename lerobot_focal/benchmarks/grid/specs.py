@@ -13,9 +13,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from .datasets import TaskData, task_data
+from .demos import TaskData, task_data
+from .grid_presets import GridPreset, capped_seeds
 from .methods import METHODS
-from .presets import GridPreset, capped_seeds
 from .results import run_key
 
 

@@ -2,7 +2,7 @@
 
 Both come from `lerobot-focal-collect` (MetaWorld's scripted experts; full-length episodes kept when successful
 on ≥ 5 steps, as DP3 collects them). One pair per observation type a method of the grid reads. Training
-demos use seeds from the preset's ``demo_seed`` (`presets.DEMO_SEED` unless overridden), never those of
+demos use seeds from the preset's ``demo_seed`` (`grid_presets.DEMO_SEED` unless overridden), never those of
 LeRobot's periodic evaluation; held-out episodes use seeds far from both (``HELDOUT_SEED``) so the open-loop
 metrics see unseen object placements. Collection resumes, so a grid interrupted while collecting completes the
 datasets on its next run.
@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .presets import DEMO_SEED, GridPreset
+from .grid_presets import DEMO_SEED, GridPreset
 from .processes import run_logged
 from .seeds import HELDOUT_SEED, demo_seed_of
 
