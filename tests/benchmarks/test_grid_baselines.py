@@ -183,3 +183,28 @@ def test_report_says_what_each_method_was_given(tmp_path):
         "| w/o FCO & LAS | 0.001 | cosine, 100 warm-up | EMA weights; consistency target online | 12 / 4 |",
     ):
         assert row in report, row
+
+
+def test_dp3_is_compared_with_focal_on_the_same_point_clouds(tmp_path):
+    """The report pairs DP3 with focal on point clouds (its rival on the same inputs), in the paired table, the
+    goals and the latency line, and never with focal on object poses."""
+    from lerobot_focal.benchmarks.grid.report import write_report
+    from tests.benchmarks.test_grid_estimators import _record
+
+    methods = ["focal", "focal_pc", "dp3"]
+    grid = {"preset": json.loads(json.dumps(PRESETS["cpu_fair"].to_dict())), "overrides": {},
+            "tasks": ["disassemble", "push-wall"], "methods": methods, "seeds": [0, 1]}
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    tops = {"focal": 0.9, "focal_pc": 0.6, "dp3": 0.5}
+    for m in methods:
+        for task in grid["tasks"]:
+            for seed in (0, 1):
+                record = _record(task, m, seed, tops[m] + 0.05 * seed, tops[m], "fresh")
+                record["latency_ms"], record["nfe"] = (20.0, 10.0) if m == "dp3" else (4.0, 1.0)
+                ResultsFile(tmp_path / "results.jsonl").append(record)
+    report = write_report(tmp_path).read_text()
+    assert "| DP3 (512-pt cloud, DDIM 10) (against FocalPolicy (512-pt cloud)) | +10.0 [+10.0, +10.0]" in report
+    assert ("- FocalPolicy (512-pt cloud) ≥ DP3 (512-pt cloud, DDIM 10) (top-5, paired over 4 task-seed pairs): "
+            "+10.0 points") in report
+    assert "latency per chunk: FocalPolicy (512-pt cloud) 4.0 ms vs DP3 (512-pt cloud, DDIM 10) 20.0 ms" in report
+    assert "focal ≥ DP3" not in report

@@ -38,6 +38,9 @@ class Method:
     # The method this one is with another setting that is not a method (its consistency target, its input): the
     # report compares it with that method as one module's contrast, not as a baseline to beat.
     variant_of: str | None = None
+    # The focal the report compares this baseline with: the one on the same inputs (DP3 reads point clouds, so
+    # its rival is focal on point clouds, not focal on object poses).
+    rival: str = "focal"
 
     def train_args(self, preset: GridPreset) -> list[str]:
         lr = preset.lr_for(self.name, self.own_lr)
@@ -176,7 +179,7 @@ METHODS: dict[str, Method] = {
         # DP as its authors (and DP3's) evaluate it: an EMA copy on DP3's schedule, acting with the EMA weights.
         Method("diffusion_ema", "DP with EMA (DDIM 10)", "diffusion_ema"),
         # DP3: diffusion_ema on the point cloud and the 9-d state, through focal's encoder (lerobot_focal.policy.dp3).
-        Method("dp3", "DP3 (512-pt cloud, DDIM 10)", "dp3", obs_type="pointcloud"),
+        Method("dp3", "DP3 (512-pt cloud, DDIM 10)", "dp3", obs_type="pointcloud", rival="focal_pc"),
         Method("act", "ACT", "act", own_lr=1e-5),  # ACT's default lr (its authors'), with no schedule
     ]
 }

@@ -129,6 +129,11 @@ def _paired_cells(records: list[RunRecord], tasks: list[str], a: str, b: str, ke
     return cells
 
 
+def _rival(method: str) -> str:
+    """The focal a method is compared with (``Method.rival``: the one on the same inputs)."""
+    return METHODS[method].rival if method in METHODS else "focal"
+
+
 def _paired_table(
     records: list[RunRecord], tasks: list[str], methods: list[str], label: dict, keys: list[tuple]
 ) -> list[str]:
@@ -141,8 +146,10 @@ def _paired_table(
             "evaluation episodes), mean with a 95 % Student-t interval, and focal's wins / ties / losses.", "",
             "| Method " + header, rule]
     for m in methods:
-        cells = None if m == "focal" else _paired_cells(records, tasks, "focal", m, keys)
-        rows += [f"| {label[m]} | " + " | ".join(cells) + " |"] if cells else []
+        rival = _rival(m)
+        cells = None if m == "focal" or rival not in methods else _paired_cells(records, tasks, rival, m, keys)
+        name = label[m] if rival == "focal" else f"{label[m]} (against {label[rival]})"
+        rows += [f"| {name} | " + " | ".join(cells) + " |"] if cells else []
     contrasts = [(a, b, what) for a, b, what in MODULE_CONTRASTS if a in methods and b in methods]
     module_rows = []
     for a, b, what in contrasts:
@@ -203,24 +210,28 @@ def _goals(records: list[RunRecord], tasks: list[str], methods: list[str], label
     if "focal_pc" in methods:
         lines += _point_cloud_goal(records, tasks, label)
     baselines = [m for m in methods if m != "focal" and not (m in METHODS and METHODS[m].variant_of == "focal")]
+    def who(rival: str) -> str:
+        return "focal" if rival == "focal" else label.get(rival, rival)
+
     for m in baselines:
-        d = paired_difference(*_pairs(records, "focal", m, "success_top_k", tasks))
+        rival = _rival(m)
+        d = paired_difference(*_pairs(records, rival, m, "success_top_k", tasks))
         if d["n"] == 0:
             continue
         ci = "" if math.isnan(d["lo"]) else f", 95 % interval [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
-        lines.append(f"- focal ≥ {label[m]} (top-5, paired over {d['n']} task-seed pairs): "
+        lines.append(f"- {who(rival)} ≥ {label[m]} (top-5, paired over {d['n']} task-seed pairs): "
                      f"{d['mean'] * 100:+.1f} points{ci} → **{'met' if d['mean'] >= 0 else 'MISSED'}**")
 
     def run_mean(method: str, key: str) -> float:  # over every finished run: cost needs no whole seed
         return mean_std([r.value(key) for r in records if r.method == method and getattr(r, key) is not None])[0]
 
-    lf = run_mean("focal", "latency_ms")
     for m in (b for b in baselines if b in METHODS and METHODS[b].policy_type != "focal"):
-        lm = run_mean(m, "latency_ms")
+        rival = _rival(m)
+        lf, lm = run_mean(rival, "latency_ms"), run_mean(m, "latency_ms")
         if math.isnan(lm) or math.isnan(lf):
             continue
-        line = (f"- latency per chunk: focal {lf:.1f} ms vs {label[m]} {lm:.1f} ms, a ratio of {lf / lm:.2f} "
-                f"(NFE {run_mean('focal', 'nfe'):.0f} vs {run_mean(m, 'nfe'):.0f})")
+        line = (f"- latency per chunk: {who(rival)} {lf:.1f} ms vs {label[m]} {lm:.1f} ms, a ratio of {lf / lm:.2f} "
+                f"(NFE {run_mean(rival, 'nfe'):.0f} vs {run_mean(m, 'nfe'):.0f})")
         if m in LATENCY_GOALS:  # a goal of the benchmark: focal's latency within this factor of the method's
             factor = LATENCY_GOALS[m]
             line += f" → within {factor:g}× of {label[m]}'s: **{'met' if lf <= factor * lm else 'MISSED'}**"
