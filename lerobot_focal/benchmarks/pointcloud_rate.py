@@ -98,6 +98,7 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
         depth_to_pointcloud,
     )
     from lerobot_focal.robots.ur10e import UR10e, UR10eConfig
+    from lerobot_focal.robots.ur10e.twin.scene import TABLE_TOP_BOX
 
     with TemporaryDirectory() as tmp:
         robot = UR10e(UR10eConfig(backend="sim", sim_camera_width=width, sim_camera_height=height,
@@ -108,10 +109,9 @@ def measure_robot_frame(width: int = 848, height: int = 480, repeats: int = 15) 
             info = robot.camera_infos()["front"]
         finally:
             robot.disconnect()
-    cfg = robot.config
     intr = PinholeIntrinsics(fx=info.fx, fy=info.fy, cx=info.cx, cy=info.cy, width=info.width, height=info.height)
     pose = np.asarray(info.T_base_cam)
-    spec = PointCloudSpec(num_points=512, bounds=WorkspaceBounds(tuple(cfg.pointcloud_min), tuple(cfg.pointcloud_max)))
+    spec = PointCloudSpec(num_points=512, bounds=WorkspaceBounds(*TABLE_TOP_BOX))
 
     def old() -> np.ndarray:
         return _cloud_cropped_after_backprojection(depth, intr, pose, spec, depth_scale=0.001)

@@ -43,6 +43,7 @@ import numpy as np
 
 from lerobot_focal.console import console_script, doc_parser
 from lerobot_focal.figures import save_png
+from lerobot_focal.robots.ur10e.twin.scene import TABLE_TOP_BOX, crop_flags
 
 STAGES = ("get_observation", "camera_read", "inference", "preprocessor", "depth_to_cloud", "select_action",
           "network", "postprocessor", "send_action")
@@ -61,8 +62,7 @@ class Variant:
 
 def variants(crop_min: tuple[float, ...], crop_max: tuple[float, ...], image_resize: tuple[int, int],
              image_crop: tuple[int, int], state_dim: int, width: int, height: int) -> list[Variant]:
-    box = (f"--policy.pointcloud_crop_min=[{','.join(map(str, crop_min))}]",
-           f"--policy.pointcloud_crop_max=[{','.join(map(str, crop_max))}]")
+    box = crop_flags((crop_min, crop_max))
     image_features = {
         "observation.state": {"type": "STATE", "shape": [state_dim]},
         "observation.images.front": {"type": "VISUAL", "shape": [3, height, width]},
@@ -353,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[rollout-bench] recording 2 scripted episodes at {args.width}x{args.height} -> {dataset}", flush=True)
         record_dataset(dataset, args.width, args.height, args.fps, episodes=2, seconds=3.0,
                        calibration_dir=work / "calibration")
-    chosen = [v for v in variants(cfg.pointcloud_min, cfg.pointcloud_max, tuple(args.image_resize),
+    chosen = [v for v in variants(*TABLE_TOP_BOX, tuple(args.image_resize),
                                   tuple(args.image_crop), state_dim, args.width, args.height)
               if v.name in args.configs]
     configurations = []

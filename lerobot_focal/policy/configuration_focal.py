@@ -31,57 +31,27 @@ from lerobot_focal.config_errors import (
     require_positive,
 )
 from lerobot_focal.constants import OBS_POINTCLOUD
+from lerobot_focal.policy.ablations import ABLATIONS, PAPER_METHOD, resolve_method_switches
+from lerobot_focal.policy.depth_cloud_settings import (
+    camera_name,
+    cloud_feature,
+    declare_cloud_input,
+    validate_depth_cloud,
+)
 from lerobot_focal.policy.ema import check_ema_settings
-from lerobot_focal.policy.network import unet_downsampling_factor
 from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
-# The method switches an ablation may set, with the paper's values. In the dataclass they default to None,
-# meaning "not given": `__post_init__` fills them from the ablation, else from here. So a switch given on the
-# command line is known to be given even when it equals the paper's value, and contradicting an ablation is an
-# error instead of being silently overridden.
-PAPER_METHOD: dict[str, object] = {
-    "objective": "fco",
-    "anchor_sampler": "logit_normal",
-    "anchor_mu": 4.0,
-    "anchor_sigma": 1.6,
-    "fixed_r": 1.0,
-    "time_loss_window": "proximal",
-    "time_weight": 1.0,
-    "regularizer": "freq",
-    "freq_loss_window": "macro",
-    "freq_band": "all",
-    "consistency_target": "ema",
-}
-
-# The paper's ablations, each a set of field values (Tables 4, 9 and the appendix). Applying one is
-# equivalent to passing those fields on the command line.
-ABLATIONS: dict[str, dict[str, object]] = {
-    "wo_las": {"anchor_sampler": "adjacent"},
-    "wo_fco_las": {"objective": "flowpolicy", "anchor_sampler": "adjacent"},
-    "time_only_fco": {"regularizer": "time_mse"},
-    "freq_only_fco": {"time_weight": 0.0},
-    "fixed_r": {"anchor_sampler": "fixed", "fixed_r": 1.0},
-    "fco_full_macro": {"time_loss_window": "macro"},
-    "fco_prox_freq": {"time_loss_window": "macro", "freq_loss_window": "proximal"},
-    "low_freq_only": {"freq_band": "low"},
-    "high_freq_only": {"freq_band": "high"},
-    "anchor_0.4_0.5": {"anchor_mu": 0.4, "anchor_sigma": 0.5},
-    "anchor_1.4_0.5": {"anchor_mu": 1.4, "anchor_sigma": 0.5},
-    # Not a paper ablation: what the authors' public code does (mixture anchor, online stop-grad target).
-    "public_code": {"anchor_sampler": "mixture", "consistency_target": "online"},
-}
-
+# ABLATIONS and PAPER_METHOD live in `ablations`; they stay importable from here, where users found them.
+__all__ = ["ABLATIONS", "PAPER_METHOD", "FocalConfig", "FocalConfigError", "check_feature_shapes",
+           "pointcloud_normalization_mapping"]
 
 class FocalConfigError(ConfigError):
     """A `FocalConfig` setting that cannot work; the message names it and the fix.
 
     A `ConfigError`, not a ValueError, so that it reaches the `lerobot-train` user (see `config_errors`).
     """
-
-
-assert set(PAPER_METHOD) >= {k for fields in ABLATIONS.values() for k in fields}
 
 
 def pointcloud_normalization_mapping() -> dict[str, NormalizationMode]:
@@ -142,7 +112,8 @@ class FocalConfig(PreTrainedConfig):
             supervised window"; up to L executes into the foresight part of the macro-trajectory (fewer
             re-plans, as LeRobot's diffusion executes 8 of 16), which only L_freq shapes.
         drop_n_last_frames: Frames at each episode's end that never start a training window; None → H − 1, so
-            the supervised proximal chunk is always real data (the rest of L repeats the last action).
+            the supervised proximal chunk is always real data; the foresight part past the episode end repeats
+            the last action (LeRobot's edge padding, the same as DP3's replicate padding).
         normalization_mapping: LeRobot normalisation mode per feature type. A point cloud is a STATE feature
             (MIN_MAX per xyz channel, DP3's limits); ENV (object poses) is MIN_MAX too; dimensions that are
             constant in the data keep a unit scale (see `stats.widen_degenerate_min_max`).
@@ -151,16 +122,22 @@ class FocalConfig(PreTrainedConfig):
         use_pointcloud_color: Use xyz+rgb when the cloud has 6 channels (xyz only otherwise).
         pointcloud_feature_dim: Output width of the DP3 point-cloud MLP encoder.
         pointcloud_from_depth: A depth key (e.g. "observation.images.front_depth") to turn into the point cloud in
-            the preprocessor, for robots that record depth because LeRobot cannot record a point cloud.
-        pointcloud_camera_info: cameras.json with the depth camera's intrinsics and pose; None → the dataset's
+            the preprocessor, for robots such as `ur10e` that record depth because LeRobot 0.6.1 cannot record a
+            point cloud. It adds `pointcloud_key` (P, 3) to the input features and a `focal_depth_to_pointcloud`
+            step to the preprocessor (back-projection → crop → farthest point sampling with
+            `lerobot_focal.geometry.pointcloud`), identical at training (decoded depth video) and at rollout (the
+            robot's raw uint16 frame); the camera info and crop are saved in that step, with the checkpoint.
+        pointcloud_camera_info: cameras.json with the depth camera's intrinsics and pose (the robot writes it on
+            connect: $HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json); None → the dataset's
             `meta/cameras.json`.
         pointcloud_camera: Entry of that file; None → derived from the depth key ("…front_depth" → "front").
         pointcloud_crop_min: Lower corner of the workspace box the cloud is cropped to (robot base frame, m).
         pointcloud_crop_max: Upper corner of that box.
         pointcloud_num_points: Points kept by farthest-point sampling.
         pointcloud_voxel_size: > 0: voxel-grid downsampling before sampling (faster on large frames).
-        pointcloud_depth_unit: Unit of *float* depth from a decoded dataset ("mm", LeRobot's default, or "m");
-            integer frames are raw sensor units times the camera's depth_scale.
+        pointcloud_depth_unit: Unit of *float* depth from a decoded dataset ("mm", LeRobot's default
+            `--dataset.depth_output_unit`, or "m"); integer frames (the robot's raw uint16) are raw sensor units
+            times the camera's depth_scale.
         pointcloud_min_depth: Depths below this (m) count as "no return" (LeRobot's codec decodes 0 as 10 mm).
         use_state: Read `observation.state` (proprioception) through a small MLP.
         use_env_state: Read `observation.environment_state` (e.g. MetaWorld's object poses) through the same kind
@@ -169,7 +146,8 @@ class FocalConfig(PreTrainedConfig):
         use_images: Read RGB `observation.images.*` through LeRobot's diffusion RGB encoder (the presets turn this
             off, so a dataset that also holds frames does not silently add a ResNet to the condition).
         vision_backbone: torchvision backbone of the RGB encoder.
-        pretrained_backbone_weights: torchvision weights name; None trains from scratch (nothing is downloaded).
+        pretrained_backbone_weights: torchvision weights name; None trains from scratch. Nothing is downloaded at
+            run time: names such as "ResNet18_Weights.IMAGENET1K_V1" work only where the weights are cached.
         use_group_norm: GroupNorm instead of BatchNorm in the backbone (not with pretrained weights).
         spatial_softmax_num_keypoints: Keypoints of the RGB encoder's spatial softmax.
         resize_shape: (H, W) images are resized to before cropping; None keeps them.
@@ -221,7 +199,8 @@ class FocalConfig(PreTrainedConfig):
         ema_max_decay: Upper clip of the decay (0.9999).
         ema_update_after_step: EMA updates before this step copy the weights.
         use_ema_for_inference: Act with the EMA weights (True) or the online ones.
-        check_finite: Refuse batches with NaN/inf, naming the key.
+        check_finite: Refuse batches with NaN/inf, naming the key, instead of silently training on them (one
+            reduction per key per step).
         rtc_config: LeRobot's real-time chunking settings; None (training, lerobot-eval, synchronous rollout)
             leaves inference unchanged. `lerobot-rollout --inference.type=rtc` sets it (`--inference.rtc.*`);
             then each chunk is the whole macro-trajectory, guided towards the previous chunk (policy/rtc.py).
@@ -229,57 +208,40 @@ class FocalConfig(PreTrainedConfig):
         optimizer_betas: AdamW betas.
         optimizer_eps: AdamW epsilon.
         optimizer_weight_decay: AdamW weight decay.
-        optimizer_grad_clip_norm: Gradient-norm clip applied by lerobot-train.
+        optimizer_grad_clip_norm: Gradient-norm clip applied by lerobot-train. The authors never clip; LeRobot's
+            default of 10 only acts on exploding gradients.
         scheduler_name: diffusers learning-rate schedule.
         scheduler_warmup_steps: Warm-up steps of that schedule.
     """
 
+    # Each field is documented once, in the Args block above.
     # --- windows -------------------------------------------------------------------------------------------
     n_obs_steps: int = 2
-    chunk_size: int = 4  # H: proximal chunk = executed chunk
-    n_chunks: int = 3  # N: chunks in the macro-trajectory, L = N·H
-    n_action_steps: int | None = None  # None → H (executed chunk = supervised chunk)
-    # Frames at the end of each episode that never start a training window. None → H − 1, so the supervised
-    # proximal chunk is always real data; the foresight part past the episode end repeats the last action
-    # (LeRobot's edge padding, the same as DP3's replicate padding).
+    chunk_size: int = 4
+    n_chunks: int = 3
+    n_action_steps: int | None = None
     drop_n_last_frames: int | None = None
-
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=pointcloud_normalization_mapping)
 
     # --- observations --------------------------------------------------------------------------------------
     pointcloud_key: str = OBS_POINTCLOUD
     use_pointcloud: bool = True
-    use_pointcloud_color: bool = False  # use xyz+rgb when the cloud has 6 channels
+    use_pointcloud_color: bool = False
     pointcloud_feature_dim: int = 64
-    # Point cloud from a stored depth map (robots such as `ur10e` record `observation.images.<cam>_depth`, since
-    # LeRobot 0.6.1 cannot record a point cloud). Naming a depth key here adds `pointcloud_key` (P, 3) to the
-    # input features and a `focal_depth_to_pointcloud` step to the preprocessor: back-projection → crop →
-    # farthest point sampling with `lerobot_focal.geometry.pointcloud`, identical at training (decoded depth video)
-    # and at rollout (the robot's raw uint16 frame). The camera info and crop are stored in the saved step.
-    pointcloud_from_depth: str | None = None  # e.g. "observation.images.front_depth"
-    # cameras.json written by the robot on connect ($HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json);
-    # None → `<dataset root>/meta/cameras.json`.
+    pointcloud_from_depth: str | None = None
     pointcloud_camera_info: str | None = None
-    pointcloud_camera: str | None = None  # entry in that file; None → from the key ("…images.front_depth" → "front")
-    pointcloud_crop_min: tuple[float, float, float] | None = None  # base-frame workspace box, metres
+    pointcloud_camera: str | None = None
+    pointcloud_crop_min: tuple[float, float, float] | None = None
     pointcloud_crop_max: tuple[float, float, float] | None = None
     pointcloud_num_points: int = 512
-    pointcloud_voxel_size: float = 0.0  # > 0: voxel grid before FPS (faster on 640×480 frames)
-    # Unit of *float* depth, i.e. the decoded dataset (`--dataset.depth_output_unit`, LeRobot's default "mm").
-    # Integer frames (the robot's raw uint16) are always raw sensor units × the camera's depth_scale.
+    pointcloud_voxel_size: float = 0.0
     pointcloud_depth_unit: str = "mm"
-    # Closer than this (m) is "no return": LeRobot's depth video decodes a 0 (no return) as 10 mm.
     pointcloud_min_depth: float = 0.05
     use_state: bool = True
     use_env_state: bool = False
     state_feature_dim: int = 64
-    # On by default so ordinary LeRobot camera datasets train as they are; the point-cloud presets
-    # (configs/focal_*.json) turn it off, as in DP3, so a dataset that also holds frames does not silently add a
-    # ResNet-18 to the condition.
     use_images: bool = True
     vision_backbone: str = "resnet18"
-    # No download at run time: torchvision names such as "ResNet18_Weights.IMAGENET1K_V1" work only where
-    # the weights are cached. GroupNorm (the default) cannot be combined with pretrained BatchNorm weights.
     pretrained_backbone_weights: str | None = None
     use_group_norm: bool = True
     spatial_softmax_num_keypoints: int = 32
@@ -297,12 +259,10 @@ class FocalConfig(PreTrainedConfig):
     gradient_checkpointing: bool = False
     time_scale: float = 99.0
 
-    # --- method: sampling, objective, target ---------------------------------------------------------------
-    ablation: str | None = None  # one of ABLATIONS; sets the fields below
-    # The switches below that an ablation may set default to None ("not given") and are resolved in
-    # __post_init__ to the ablation's value or the paper's (PAPER_METHOD); a saved config holds the resolved values.
-    objective: str | None = None  # fco | flowpolicy
-    anchor_sampler: str | None = None  # logit_normal (LAS) | adjacent | fixed | mixture
+    # --- method: sampling, objective, target (None: "not given", resolved by `ablations`) ------------------
+    ablation: str | None = None
+    objective: str | None = None
+    anchor_sampler: str | None = None
     time_eps: float = 0.01
     anchor_mu: float | None = None
     anchor_sigma: float | None = None
@@ -311,23 +271,22 @@ class FocalConfig(PreTrainedConfig):
     mixture_mu_a: float = 0.6
     mixture_sigma_a: float = 1.6
     mixture_ratio: float = 0.15
-    time_loss_window: str | None = None  # proximal | macro
+    time_loss_window: str | None = None
     time_weight: float | None = None
-    regularizer: str | None = None  # freq | time_mse | none
-    freq_loss_window: str | None = None  # macro | proximal
-    freq_weight: float = 1e-4  # λ
-    freq_band: str | None = None  # all | low | high
+    regularizer: str | None = None
+    freq_loss_window: str | None = None
+    freq_weight: float = 1e-4
+    freq_band: str | None = None
     freq_cutoff: int | None = None
     macro_mse_weight: float = 1.0
     cfm_num_segments: int = 2
     cfm_boundary: float = 1.0
     cfm_alpha: float = 1e-5
-    # θ⁻ of the consistency target: "ema" (the paper) or "online" weights under no_grad (the authors' code).
     consistency_target: str | None = None
-    num_inference_steps: int = 1  # NFE per chunk; > 1 integrates with Euler steps
-    inference_noise_scale: float = 1.0  # std of the starting noise M_0 at inference (1: the flow's own prior)
+    num_inference_steps: int = 1
+    inference_noise_scale: float = 1.0
 
-    # --- EMA (DP3's schedule: decay = 1 − (1 + step)^−power, clipped) --------------------------------------
+    # --- EMA (DP3's schedule) ------------------------------------------------------------------------------
     use_ema: bool = True
     ema_power: float = 0.75
     ema_min_decay: float = 0.0
@@ -335,10 +294,8 @@ class FocalConfig(PreTrainedConfig):
     ema_update_after_step: int = 0
     use_ema_for_inference: bool = True
 
-    # Refuse batches with NaN/inf instead of silently training on them (one reduction per key per step).
+    # --- inputs at run time --------------------------------------------------------------------------------
     check_finite: bool = True
-
-    # Real-time chunking (set by lerobot-rollout --inference.type=rtc; see policy/rtc.py).
     rtc_config: RTCConfig | None = None
 
     # --- optimisation (paper Table "Hyperparameters setup") ------------------------------------------------
@@ -346,7 +303,6 @@ class FocalConfig(PreTrainedConfig):
     optimizer_betas: tuple[float, float] = (0.95, 0.999)
     optimizer_eps: float = 1e-8
     optimizer_weight_decay: float = 1e-6
-    # The authors never clip; LeRobot's default of 10 only acts on exploding gradients.
     optimizer_grad_clip_norm: float = 10.0
     scheduler_name: str = "cosine"
     scheduler_warmup_steps: int = 500
@@ -354,7 +310,7 @@ class FocalConfig(PreTrainedConfig):
     def __post_init__(self) -> None:
         # A ValueError from here (the specs' own checks included) reaches the CLI user as a FocalConfigError.
         super().__post_init__()
-        self._resolve_method_switches()
+        resolve_method_switches(self, FocalConfigError)
         self._validate()
 
     def _validate(self) -> None:
@@ -373,7 +329,7 @@ class FocalConfig(PreTrainedConfig):
                 f"chunk_size·n_chunks = {self.horizon}: a chunk step executes actions of the trajectory it "
                 f"predicts. Fix: leave it unset (executes the proximal chunk, H = {self.chunk_size}) or lower it."
             )
-        factor = unet_downsampling_factor(self.down_dims)
+        factor = self.unet_downsampling_factor
         if self.horizon % factor != 0:
             ok = [h for h in range(factor, 4 * factor + 1, factor)]
             raise FocalConfigError(
@@ -396,7 +352,7 @@ class FocalConfig(PreTrainedConfig):
         check_ema_settings(self)
         self._validate_network_and_inputs()
         if self.pointcloud_from_depth is not None:
-            self._validate_pointcloud_from_depth()
+            validate_depth_cloud(self)
         # Building the specs validates every method switch and loss weight, with a message naming the range.
         self.objective_spec()
         self.time_sampler_spec()
@@ -465,90 +421,29 @@ class FocalConfig(PreTrainedConfig):
                 f"'high' one; got {cutoff}{' (the default, L/2)' if self.freq_cutoff is None else ''}."
             )
 
-    def _validate_pointcloud_from_depth(self) -> None:
-        if self.pointcloud_crop_min is None or self.pointcloud_crop_max is None:
-            raise ValueError(
-                f"pointcloud_from_depth={self.pointcloud_from_depth!r} needs the workspace box the cloud is cropped "
-                "to, in the robot base frame (metres): pass --policy.pointcloud_crop_min='[x,y,z]' and "
-                "--policy.pointcloud_crop_max='[x,y,z]' (the ur10e robot's default box is "
-                "--policy.pointcloud_crop_min='[-1.1,-0.7,0.003]' --policy.pointcloud_crop_max='[-0.2,0.4,0.8]')."
-            )
-        lo, hi = tuple(self.pointcloud_crop_min), tuple(self.pointcloud_crop_max)
-        if len(lo) != 3 or len(hi) != 3 or any(a >= b for a, b in zip(lo, hi, strict=True)):
-            raise ValueError(f"pointcloud_crop_min {lo} must be below pointcloud_crop_max {hi} on x, y and z.")
-        if not self.use_pointcloud:
-            raise ValueError("pointcloud_from_depth is set but use_pointcloud=false: drop one of the two.")
-        if self.use_pointcloud_color:
-            raise ValueError("pointcloud_from_depth makes an xyz (P, 3) cloud; use_pointcloud_color needs (P, 6).")
-        # A config loaded from a checkpoint already lists the cloud; one from the command line gets it from the
-        # dataset hook below (or here, when input features were given explicitly).
-        if self.input_features and self.pointcloud_key not in self.input_features:
-            self.input_features[self.pointcloud_key] = self.depth_pointcloud_feature()
-
     @property
     def pointcloud_camera_name(self) -> str | None:
         """Camera whose intrinsics unproject `pointcloud_from_depth` ("observation.images.front_depth" → "front")."""
-        if self.pointcloud_camera:
-            return self.pointcloud_camera
-        if self.pointcloud_from_depth is None:
-            return None
-        name = self.pointcloud_from_depth.rsplit(".", 1)[-1]
-        return name[: -len("_depth")] if name.endswith("_depth") else name
+        return camera_name(self)
 
     def depth_pointcloud_feature(self) -> PolicyFeature:
-        return PolicyFeature(type=FeatureType.STATE, shape=(self.pointcloud_num_points, 3))
+        return cloud_feature(self)
 
     def set_dataset_feature_metadata(self, features: dict) -> None:
-        """LeRobot hook (`make_policy`, after it filled `input_features` from the dataset).
-
-        With `pointcloud_from_depth`, the dataset holds depth but no point cloud: check the depth key is there and
-        declare `pointcloud_key` as an input, so the policy is built for it and `config.json` lists it.
-        """
-        key = self.pointcloud_from_depth
-        if key is None:
-            return
-        if key not in features:
-            depth = [k for k, ft in features.items() if (ft.get("info") or {}).get("is_depth_map")]
-            raise ValueError(
-                f"pointcloud_from_depth={key!r} is not a feature of the dataset. Its depth features are {depth}; "
-                "pass one of them as --policy.pointcloud_from_depth (or record depth: for ur10e, a RealSense "
-                "camera with use_depth: true; the sim backend always records `front_depth`)."
-            )
-        self.input_features[self.pointcloud_key] = self.depth_pointcloud_feature()
-
-    def _resolve_method_switches(self) -> None:
-        """Fill each method switch left unset (None) from the ablation, else from the paper's value.
-
-        A switch that was given and contradicts the ablation is an error, even when it equals the paper's value
-        (`ablation=wo_las anchor_sampler=logit_normal` asks for two different samplers). A given value equal to
-        the ablation's is accepted: that is what a saved config.json holds, so checkpoints load back.
-        """
-        ablation: dict[str, object] = {}
-        if self.ablation is not None:
-            if self.ablation not in ABLATIONS:
-                raise FocalConfigError(
-                    f"Unknown ablation {self.ablation!r}. Choose one of {sorted(ABLATIONS)} or leave it unset."
-                )
-            ablation = ABLATIONS[self.ablation]
-        conflicts = [
-            f"{name}={getattr(self, name)!r} (the ablation sets {name}={value!r})"
-            for name, value in ablation.items()
-            if getattr(self, name) is not None and getattr(self, name) != value
-        ]
-        if conflicts:
-            raise FocalConfigError(
-                f"ablation={self.ablation!r} conflicts with the switch(es) also given: {'; '.join(conflicts)}. "
-                "An ablation sets these itself: drop the switch, or drop the ablation and give every switch."
-            )
-        for name, paper_value in PAPER_METHOD.items():
-            if getattr(self, name) is None:
-                setattr(self, name, ablation.get(name, paper_value))
+        """LeRobot hook (`make_policy`, after it filled `input_features` from the dataset): with
+        `pointcloud_from_depth`, declare the cloud the preprocessor makes from the dataset's depth as an input."""
+        declare_cloud_input(self, features)
 
     # --- derived -------------------------------------------------------------------------------------------
     @property
     def horizon(self) -> int:
         """L = N·H, the macro-trajectory length the network predicts."""
         return self.chunk_size * self.n_chunks
+
+    @property
+    def unet_downsampling_factor(self) -> int:
+        """How many times the U-Net halves the horizon: one stride-2 conv between consecutive levels."""
+        return 2 ** (len(self.down_dims) - 1)
 
     def objective_spec(self) -> ObjectiveSpec:
         return ObjectiveSpec(

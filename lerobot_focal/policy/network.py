@@ -42,11 +42,6 @@ def diffusion_spec(*, action_dim: int = 1, input_features: dict | None = None, *
     return spec
 
 
-def unet_downsampling_factor(down_dims: tuple[int, ...] | list[int]) -> int:
-    """How many times the horizon is halved: one stride-2 conv between consecutive levels."""
-    return 2 ** (len(down_dims) - 1)
-
-
 class VelocityUnet(nn.Module):
     """v_θ(M, τ, cond): maps a (B, L, d) flow state, flow time (B,) and a global condition to a velocity."""
 

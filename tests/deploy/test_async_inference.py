@@ -34,6 +34,7 @@ pytestmark = pytest.mark.subprocess  # the policy server, LeRobot's robot_client
 pytest.importorskip("grpc", reason="the async extra: pip install -e '.[async]'")
 pytest.importorskip("mujoco")
 
+from lerobot_focal.robots.ur10e.twin.scene import crop_flags  # noqa: E402
 from tests.deploy.helpers import JOINTS, random_checkpoint  # noqa: E402
 
 BIN = Path(sys.executable).parent
@@ -41,7 +42,7 @@ SITE = Path(__file__).parent / "async_dump_site"
 FPS = 10
 WIDTH = HEIGHT = 96
 DEPTH_KEY = "observation.images.front_depth"
-CROP = ("[-1.1,-0.7,0.003]", "[-0.2,0.4,0.8]")  # the ur10e robot's own pointcloud_min / pointcloud_max
+CROP = crop_flags()  # the twin's table-top box (twin/scene.TABLE_TOP_BOX)
 CHUNKS = 10  # chunks to serve before the client is stopped
 
 
@@ -96,8 +97,8 @@ def trained(tmp_path_factory):
     args = [
         str(BIN / "lerobot-train"), "--policy.type=focal", "--policy.push_to_hub=false", "--policy.device=cpu",
         "--policy.down_dims=[16,32]", "--policy.use_images=true", "--policy.spatial_softmax_num_keypoints=8",
-        f"--policy.pointcloud_from_depth={DEPTH_KEY}", f"--policy.pointcloud_crop_min={CROP[0]}",
-        f"--policy.pointcloud_crop_max={CROP[1]}", "--policy.inference_noise_scale=0",
+        f"--policy.pointcloud_from_depth={DEPTH_KEY}", CROP[0],
+        CROP[1], "--policy.inference_noise_scale=0",
         "--dataset.repo_id=local/ur10e_rollout_bench", f"--dataset.root={root}", "--steps=3", "--batch_size=4",
         "--num_workers=0", "--save_freq=3", "--log_freq=3", "--wandb.enable=false", f"--output_dir={out}",
     ]

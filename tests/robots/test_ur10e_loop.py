@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 import torch
 
+from lerobot_focal.robots.ur10e.twin.scene import crop_flags
+
 pytestmark = pytest.mark.subprocess  # lerobot-record / -train / -rollout / -teleoperate on the twin
 
 pytest.importorskip("mujoco")
@@ -280,7 +282,7 @@ def test_train_focal_then_rollout_drives_the_sim_arm(recorded, tmp_path):
 
 DUMP_SITE = Path(__file__).parent / "pointcloud_dump_site"
 DEPTH_KEY = "observation.images.front_depth"
-CROP = ("[-1.1,-0.7,0.003]", "[-0.2,0.4,0.8]")  # the ur10e robot's own pointcloud_min / pointcloud_max
+CROP = crop_flags()  # the twin's table-top box (twin/scene.TABLE_TOP_BOX)
 
 
 def _chamfer(a: np.ndarray, b: np.ndarray) -> float:
@@ -310,8 +312,8 @@ def test_focal_pointcloud_from_depth_trains_and_rolls_out_with_the_same_clouds(r
     shutil.copy(cameras, root / "meta" / "cameras.json")
     out = tmp_path / "train"
     model = _train(root, out, tmp_path, "--policy.down_dims=[32,64,128]", "--policy.use_images=false",
-                   f"--policy.pointcloud_from_depth={DEPTH_KEY}", f"--policy.pointcloud_crop_min={CROP[0]}",
-                   f"--policy.pointcloud_crop_max={CROP[1]}", steps=6, log_freq=3)
+                   f"--policy.pointcloud_from_depth={DEPTH_KEY}", CROP[0],
+                   CROP[1], steps=6, log_freq=3)
     config = json.loads((model / "config.json").read_text())
     assert config["input_features"]["observation.pointcloud"] == {"type": "STATE", "shape": [512, 3]}
     assert config["pointcloud_from_depth"] == DEPTH_KEY

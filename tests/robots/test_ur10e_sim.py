@@ -190,15 +190,18 @@ def test_depth_and_pointcloud_match_scene(robot):
     expected = -cam[2] / ray[2]
     assert center_depth_m == pytest.approx(expected, abs=2e-3)
     assert np.dot(look - cam, axis) > 0
-    pc = robot.pointcloud_from_depth(obs["front_depth"])
+    from lerobot_focal.robots.ur10e.camera_info import depth_to_pointcloud
+    from lerobot_focal.robots.ur10e.twin.scene import TABLE_TOP_BOX
+
+    box = TABLE_TOP_BOX
+    pc = depth_to_pointcloud(obs["front_depth"], info, *box, 512)
     assert pc.shape == (512, 3) and pc.dtype == np.float32
-    # The default crop removes the table top (z = 0) as DP3 does: what is left is the objects and the gripper.
-    assert pc[:, 2].min() >= robot.config.pointcloud_min[2] - 1e-6
+    # A box starting 3 mm above the table removes the table top (z = 0) as DP3 does: what is left is the objects
+    # and the gripper.
+    assert pc[:, 2].min() >= box[0][2] - 1e-6
     cube = np.linalg.norm(pc[:, :2] - np.array([-0.65, -0.05]), axis=1) < 0.03
     assert cube.any() and pc[cube, 2].max() == pytest.approx(0.04, abs=0.006)
     # With a crop that keeps the table, the table points lie on the plane z = 0 (table height).
-    from lerobot_focal.robots.ur10e.camera_info import depth_to_pointcloud
-
     full = depth_to_pointcloud(obs["front_depth"], info, (-1.1, -0.7, -0.05), (-0.2, 0.4, 0.8), 512)
     near_table = full[full[:, 2] < 0.003]
     assert len(near_table) > 200

@@ -45,10 +45,6 @@ class UR10eConfig(RobotConfig):
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     # Flange -> TCP distance along the tool z axis (fingertip centre of the AG-95 at ~0.16 m).
     tcp_offset: float = 0.16
-    # Crop box (base frame) and size of the point cloud computed by `UR10e.pointcloud_from_depth`.
-    pointcloud_min: tuple[float, float, float] = (-1.1, -0.7, 0.003)
-    pointcloud_max: tuple[float, float, float] = (-0.2, 0.4, 0.8)
-    pointcloud_num_points: int = 512
 
     # --- sim backend -----------------------------------------------------------------------------------------
     sim_camera_name: str = "front"
@@ -90,7 +86,7 @@ class UR10eConfig(RobotConfig):
         require_choice("gripper", self.gripper, GRIPPERS)
         require_positive(
             control_hz=self.control_hz, rtde_frequency=self.rtde_frequency, rtde_timeout_s=self.rtde_timeout_s,
-            rtde_connect_timeout_s=self.rtde_connect_timeout_s, pointcloud_num_points=self.pointcloud_num_points,
+            rtde_connect_timeout_s=self.rtde_connect_timeout_s,
             sim_camera_width=self.sim_camera_width, sim_camera_height=self.sim_camera_height,
             **{"safety.max_linear_speed": self.safety.max_linear_speed,
                "safety.max_angular_speed": self.safety.max_angular_speed},
@@ -107,10 +103,10 @@ class UR10eConfig(RobotConfig):
                          why="That is the range URScript's servoL accepts.")
         if tuple(self.sim_camera_pos) == tuple(self.sim_camera_lookat):
             raise ValueError(f"sim_camera_pos and sim_camera_lookat are the same point {tuple(self.sim_camera_pos)}.")
-        for name, (lo, hi) in {"safety.workspace": (self.safety.workspace_min, self.safety.workspace_max),
-                               "pointcloud": (self.pointcloud_min, self.pointcloud_max)}.items():
-            if any(a >= b for a, b in zip(lo, hi, strict=True)):
-                raise ValueError(f"{name}_min {tuple(lo)} must be below {name}_max {tuple(hi)} on every axis.")
+        lo, hi = self.safety.workspace_min, self.safety.workspace_max
+        if any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(f"safety.workspace_min {tuple(lo)} must be below safety.workspace_max {tuple(hi)} on "
+                             "every axis.")
         bad_poses = {name: pose for name, pose in self.camera_poses.items() if len(pose) != 6}
         if bad_poses:
             raise ValueError(

@@ -22,10 +22,10 @@ as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W
 
 Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
 extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
-to be stored with the dataset (:func:`.camera_info.save_camera_infos`). :meth:`pointcloud_from_depth` turns a
-depth frame into the (512, 3) ``observation.pointcloud`` with the project's shared depth->points code. A
-``focal`` policy trained with ``--policy.pointcloud_from_depth=observation.images.<camera>_depth`` does the
-same conversion in its own preprocessor (``lerobot_focal.policy.processor_focal``), at training and rollout.
+to be stored with the dataset (:func:`.camera_info.save_camera_infos`). The robot makes no point cloud: a
+``focal`` policy trained with ``--policy.pointcloud_from_depth=observation.images.<camera>_depth`` makes it from
+the depth in its own preprocessor, at training and rollout, with the crop and point count its checkpoint holds
+(``lerobot_focal.policy.depth_cloud_settings``), the one copy of those settings.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from lerobot.utils.decorators import check_if_already_connected, check_if_not_co
 from scipy.spatial.transform import Rotation
 
 from .backend import ArmBackend
-from .camera_info import CameraInfo, depth_to_pointcloud, save_camera_infos
+from .camera_info import CameraInfo, save_camera_infos
 from .config_ur10e import UR10eConfig
 from .kinematics import AG95_MAX_OPENING_M, JOINT_NAMES, apply_delta, matrix_from_pose6, pose_difference
 from .safety import RobotFaultError, SafetyFilter, UnsafeActionError, Watchdog
@@ -270,13 +270,6 @@ class UR10e(Robot):
         if self.backend is None:
             raise RuntimeError(f"{self} is not connected: camera intrinsics are read from the running camera.")
         return self.backend.camera_infos()
-
-    def pointcloud_from_depth(self, depth: np.ndarray, camera: str | None = None) -> np.ndarray:
-        """(N, 3) float32 base-frame point cloud (N = config.pointcloud_num_points) from a `{camera}_depth` frame."""
-        infos = self.camera_infos()
-        name = camera or next(iter(infos))
-        c = self.config
-        return depth_to_pointcloud(depth, infos[name], c.pointcloud_min, c.pointcloud_max, c.pointcloud_num_points)
 
     # -- action -----------------------------------------------------------------------------------------------
     def _refuse(self, message: str) -> UnsafeActionError:
