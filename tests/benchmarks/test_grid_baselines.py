@@ -208,3 +208,22 @@ def test_dp3_is_compared_with_focal_on_the_same_point_clouds(tmp_path):
             "+10.0 points") in report
     assert "latency per chunk: FocalPolicy (512-pt cloud) 4.0 ms vs DP3 (512-pt cloud, DDIM 10) 20.0 ms" in report
     assert "focal ≥ DP3" not in report
+
+
+@pytest.mark.subprocess
+@pytest.mark.parametrize("method", ["focal_rgb", pytest.param("diffusion_rgb", marks=pytest.mark.slow),
+                                    pytest.param("act_rgb", marks=pytest.mark.slow)])
+def test_camera_methods_train_and_evaluate_on_rgb_and_state_only(work, tmp_path, method):  # noqa: F811
+    """cpu_rgb: the demos hold an 84x84 camera and the state but no object poses; the policy reads the camera
+    (cropped) and the state; LeRobot's evaluation renders the camera at the demos' size."""
+    out = tmp_path / "out"
+    assert driver.main([*TINY_ARGS, "--preset", "cpu_rgb", "--methods", method, "--out", str(out),
+                        "--work", str(work), "--final-episodes", "2"]) == 0
+    (record,) = ResultsFile(out / "results.jsonl").records()
+    assert record.status == "ok" and [c["step"] for c in record.curve] == [2, 4] and record.fresh_episodes == 2
+    cfg = json.loads(next(Path(record.run_dir).rglob("pretrained_model/config.json")).read_text())
+    assert set(cfg["input_features"]) == {"observation.state", "observation.image"}
+    assert cfg["input_features"]["observation.image"]["shape"] == [3, 84, 84]
+    if method != "act_rgb":
+        assert cfg["crop_shape"] == [76, 76]
+    assert cfg["pretrained_backbone_weights"] is None

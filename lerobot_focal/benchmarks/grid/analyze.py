@@ -57,10 +57,16 @@ def heldout_episodes(root: Path, repo_id: str, keys: list[str]) -> list[dict[str
 
     ds = LeRobotDataset(repo_id, root=root)
     hf = ds.hf_dataset.with_format("numpy")
+    images = {k for k in keys if ds.meta.features[k]["dtype"] in ("image", "video")}
+    if videos := [k for k in images if ds.meta.features[k]["dtype"] == "video"]:
+        raise ValueError(f"{root}: {videos} are stored as video; the analysis reads frames stored as images")
     episodes = []
     for ep in range(ds.meta.total_episodes):
         rows = hf.filter(lambda e, ep=ep: e == ep, input_columns="episode_index")
-        episodes.append({k: np.stack(rows[k]).astype(np.float32) for k in [*keys, "action"]})
+        episode = {k: np.stack(rows[k]).astype(np.float32) for k in [*keys, "action"]}
+        for k in images:  # stored (H, W, C) uint8; policies take (C, H, W) in [0, 1], as LeRobotDataset gives it
+            episode[k] = np.ascontiguousarray(episode[k].transpose(0, 3, 1, 2)) / 255.0
+        episodes.append(episode)
     return episodes
 
 

@@ -42,9 +42,11 @@ class TaskData:
 
 
 def obs_types(preset: GridPreset, obs_type: str | None = None) -> str:
+    """What the collector records for a method's observations (the state always). Camera methods get no object
+    poses: what they know of the objects comes through the camera."""
     obs_type = obs_type or preset.obs_type
     types = [obs_type if obs_type in ("state", "pointcloud") else "pixels"]
-    if preset.env_state:
+    if preset.env_state and types[0] != "pixels":
         types.append("env_state")
     return ",".join(types)
 
@@ -69,6 +71,7 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         sys.executable, "-m", "lerobot_focal.datasets.making.collect",
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
         "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
+        "--image_size", str(preset.image_size),
     ]
     log.parent.mkdir(parents=True, exist_ok=True)
     run_logged(cmd, log, dict(os.environ), f"collecting {task} demos")

@@ -77,6 +77,11 @@ class GridPreset:
     # paper's). "constant": the rate stays, so a learning curve that flattens does so because the method has
     # learned what it can, not because the rate reached zero (how the plateau budget is measured).
     schedule: str = "cosine"
+    # Camera methods (obs type pixels_agent_pos: one RGB camera + the 9-d state, no object poses): frames of
+    # image_size² pixels from MetaWorld's corner2 camera, randomly cropped to image_crop² in training (centre crop
+    # at inference), as LeRobot's image policies crop.
+    image_size: int = 84
+    image_crop: int = 76
 
     # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
     overridden: tuple[str, ...] = ()
@@ -136,7 +141,8 @@ def capped_seeds(seed_caps: Iterable[Sequence], method: str, seeds: Sequence[int
 
 
 #: The fields the collected datasets depend on (besides the observation types, which name their own folders).
-DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state", "demo_seed", "demos_per_seed")
+DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state", "demo_seed", "demos_per_seed",
+               "image_size")
 PERIODIC_EVALS = ("fixed", "fresh")
 #: ``schedule`` values and the diffusers schedule each selects (``--policy.scheduler_name``).
 SCHEDULES = {"cosine": "cosine", "constant": "constant_with_warmup"}
@@ -212,7 +218,7 @@ PRESETS: dict[str, GridPreset] = {
     # disassemble, seed 0: 4, 24 and 44 % on 50 fresh episodes); act 1e-4 (of its authors' 1e-5 and 1e-4: 4 and
     # 70 %). Both winners sit at the top of their sweep (a higher rate is untried). A longer budget (issue 31
     # item 4) changes steps/eval_every/notes of this entry; nothing else in the grid depends on this preset's values.
-    "cpu_fair": replace(
+    "cpu_fair": (_CPU_FAIR := replace(
         _CPU_PLATEAU,
         name="cpu_fair",
         periodic_eval="fresh",
@@ -228,6 +234,23 @@ PRESETS: dict[str, GridPreset] = {
             "a sweep chose (1e-3 of 1e-4/3e-4/1e-3), LeRobot's ACT with its defaults (chunk 50, width 128/800) but "
             "at the rate the same sweep chose (1e-4 of its authors' 1e-5 and 1e-4; at 1e-5 it scored 4 % fresh on "
             "disassemble after 8000 steps). Both chosen rates are the highest swept."
+        ),
+    )),
+    # From a camera: one RGB camera + the 9-d state, no object poses, for focal, diffusion with its EMA and ACT
+    # (`--methods rgb`, methods.RGB_PHASES), on cpu_fair's protocol. The image baselines train at the rates the
+    # low-dimensional lr sweep chose for the same policies (diffusion 1e-3, ACT 1e-4); two seeds, as a camera run
+    # costs ~15-25 low-dim ones on a CPU (lerobot-focal-bench camera-step).
+    "cpu_rgb": replace(
+        _CPU_FAIR,
+        name="cpu_rgb",
+        seeds=(0, 1),
+        method_lr=(("diffusion_rgb", 1e-3), ("act_rgb", 1e-4)),
+        notes=(
+            "CPU preset for camera inputs: cpu_fair's protocol (fresh placements at every evaluation, per-seed "
+            "demos, 8000 steps at batch 64, top-5 of 16 evaluations of 20 episodes, the final checkpoint on 50 "
+            "fresh episodes) with one 84x84 RGB camera (MetaWorld's corner2, random crop 76x76 in training) + the "
+            "9-d state and no object poses; image encoders are ResNet-18s trained from scratch (nothing is "
+            "downloaded); diffusion with EMA at 1e-3 and ACT at 1e-4 (the low-dim lr sweep's choices); seeds 0, 1."
         ),
     ),
     "paper": GridPreset(

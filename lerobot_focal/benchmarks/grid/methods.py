@@ -69,7 +69,22 @@ def _encoder_widths(preset: GridPreset) -> list[str]:
     return [] if dim is None else [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
 
 
+def _camera(obs_type: str) -> bool:
+    return obs_type.startswith("pixels")
+
+
+def _image_args(preset: GridPreset) -> list[str]:
+    """The camera: a random crop in training, as LeRobot's image policies do, and a ResNet-18 trained from scratch
+    with GroupNorm (Diffusion Policy's image encoder; nothing is downloaded)."""
+    crop = preset.image_crop
+    return [f"--policy.crop_shape=[{crop},{crop}]", "--policy.pretrained_backbone_weights=null",
+            "--policy.use_group_norm=true"]
+
+
 def _focal_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+    if _camera(obs_type):  # one RGB camera + the 9-d state
+        return [*_encoder_widths(preset), "--policy.use_env_state=false", "--policy.use_images=true",
+                *_image_args(preset)]
     # With a point cloud focal reads it and the 9-d state (DP3's inputs); without one, the object poses.
     use_env_state = preset.env_state and obs_type != "pointcloud"
     switches = [f"--policy.use_env_state={str(use_env_state).lower()}", "--policy.use_images=false"]
@@ -95,6 +110,8 @@ DP3_CHUNKING = (
 
 
 def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
+    if _camera(obs_type):
+        return _image_args(preset) + list(DP3_CHUNKING)
     _require_env_state(preset, "diffusion")
     return list(DP3_CHUNKING)
 
@@ -122,8 +139,14 @@ def _act_inputs(preset: GridPreset, obs_type: str) -> list[str]:
       CPU cores, 10 h for the 8000 steps of a CPU preset; the CPU presets shrink every network (the U-Net is
       32/64/128 instead of 512/1024/2048) and this is ACT's share of that. ``None`` keeps ACT's default size.
     """
-    _require_env_state(preset, "ACT")
-    args = [f"--policy.chunk_size={ACT_CHUNK}", f"--policy.n_action_steps={ACT_CHUNK}"]
+    if _camera(obs_type):
+        # ACT's authors start from ImageNet weights, which cannot be downloaded here: its ResNet-18 trains from
+        # scratch (with its own BatchNorm, frozen only for pretrained weights), the one change images force.
+        args = ["--policy.pretrained_backbone_weights=null"]
+    else:
+        _require_env_state(preset, "ACT")
+        args = []
+    args += [f"--policy.chunk_size={ACT_CHUNK}", f"--policy.n_action_steps={ACT_CHUNK}"]
     if preset.act_width is not None:
         dim_model, dim_feedforward = preset.act_width
         args += [f"--policy.dim_model={dim_model}", f"--policy.dim_feedforward={dim_feedforward}"]
@@ -181,6 +204,11 @@ METHODS: dict[str, Method] = {
         # DP3: diffusion_ema on the point cloud and the 9-d state, through focal's encoder (lerobot_focal.policy.dp3).
         Method("dp3", "DP3 (512-pt cloud, DDIM 10)", "dp3", obs_type="pointcloud", rival="focal_pc"),
         Method("act", "ACT", "act", own_lr=1e-5),  # ACT's default lr (its authors'), with no schedule
+        # One RGB camera (MetaWorld's corner2) + the 9-d state, no object poses: what a camera-only user has.
+        Method("focal_rgb", "FocalPolicy (RGB)", "focal", obs_type="pixels_agent_pos", variant_of="focal"),
+        Method("diffusion_rgb", "DP with EMA (RGB, DDIM 10)", "diffusion_ema", obs_type="pixels_agent_pos",
+               rival="focal_rgb"),
+        Method("act_rgb", "ACT (RGB)", "act", own_lr=1e-5, obs_type="pixels_agent_pos", rival="focal_rgb"),
     ]
 }
 
@@ -204,14 +232,16 @@ FAIR_PHASES: tuple[tuple[str, ...], ...] = (
     ("focal", "diffusion_ema", "act"),
     ("wo_fco_las",),
 )
-_PHASE_SETS = {"plateau": PLATEAU_PHASES, "fair": FAIR_PHASES}
+#: From a camera (preset cpu_rgb): focal against diffusion with its EMA and ACT, each on one RGB camera + state.
+RGB_PHASES: tuple[tuple[str, ...], ...] = (("focal_rgb", "diffusion_rgb", "act_rgb"),)
+_PHASE_SETS = {"plateau": PLATEAU_PHASES, "fair": FAIR_PHASES, "rgb": RGB_PHASES}
 
 
 def resolve_method_phases(spec: str) -> list[list[Method]]:
     """Methods in run phases: ``a,b|c`` runs every (task, seed) of a and b before any of c. ``plateau`` expands
     to :data:`PLATEAU_PHASES`, ``fair`` to :data:`FAIR_PHASES`, ``core`` and ``all`` to one phase each. A method
     appears once, in its first phase."""
-    choices = f"core, all, plateau, fair, {', '.join(METHODS)}"
+    choices = f"core, all, plateau, fair, rgb, {', '.join(METHODS)}"
     phases: list[list[str]] = []
     seen: set[str] = set()
     for phase_spec in spec.split("|"):
@@ -276,7 +306,10 @@ def given(name: str, preset: dict) -> dict[str, str]:
         chunk = f"{_flag(args, 'horizon')} / {_flag(args, 'n_action_steps')}"
         acts = "EMA weights" if method.policy_type in ("diffusion_ema", "dp3") else "online weights (no EMA)"
     obs = method.obs_type_for(p)
-    inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
-    if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
-        inputs += " + 39-d object poses"
+    if _camera(obs):
+        inputs = f"RGB {p.image_size}² (crop {p.image_crop}²) + 9-d state"
+    else:
+        inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
+        if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
+            inputs += " + 39-d object poses"
     return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs}

@@ -44,16 +44,19 @@ UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
 
 def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
     p = spec.preset
+    camera = spec.obs_type.startswith("pixels")
+    # LeRobot renders evaluation episodes to video; the grid needs none (and no blank frames to encode), unless
+    # the policy observes the camera: then frames are its input, at the size its demos were recorded.
+    size = p.image_size if camera else 64
     return [
         "--env.type=focal_metaworld",
         f"--env.task={spec.task}",
         f"--env.obs_type={spec.obs_type}",
-        f"--env.env_state={str(p.env_state).lower()}",
+        f"--env.env_state={str(p.env_state and not camera).lower()}",
         f"--env.episode_length={p.episode_length}",
-        # LeRobot renders evaluation episodes to video; the grid needs none (and no blank frames to encode).
-        "--env.observation_width=64",
-        "--env.observation_height=64",
-        "--env.render_videos=false",
+        f"--env.observation_width={size}",
+        f"--env.observation_height={size}",
+        f"--env.render_videos={str(camera).lower()}",
         f"--env.metrics_path={metrics_path}",
         "--eval.use_async_envs=false",
     ]
