@@ -32,12 +32,12 @@ import copy
 import json
 import platform
 from collections.abc import Callable
-from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from lerobot_focal.benchmarks import train_step
 from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM, benchmark_features, time_ms
 from lerobot_focal.benchmarks.train_step import dataset_clouds
 from lerobot_focal.console import doc_parser
@@ -114,24 +114,12 @@ def build_variants(batch: int, down_dims: tuple[int, ...], clouds: torch.Tensor,
 
 def training_step(policy, data: dict[str, torch.Tensor], autocast: bool, channels_last: bool
                   ) -> Callable[[], float]:
-    """One step as lerobot-train takes it (forward, backward, clip at 10, AdamW, EMA update); with `autocast`
-    the forward runs under bf16 autocast, as LeRobot's use_amp does; with `channels_last` the images arrive
-    in NHWC memory layout (the encoder folds the observation steps into the batch of 4-d frames)."""
+    """`train_step.training_step` with the policy's own optimizer; with `channels_last` the images arrive in NHWC
+    memory layout (the encoder folds the observation steps into the batch of 4-d frames)."""
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
     if channels_last:
         data = {k: _nhwc(v) if k.startswith("observation.images.") else v for k, v in data.items()}
-
-    def step() -> float:
-        with torch.autocast("cpu", dtype=torch.bfloat16) if autocast else nullcontext():
-            loss, _ = policy.forward(data)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(policy.get_optim_params(), 10.0)
-        optimizer.step()
-        optimizer.zero_grad(set_to_none=True)
-        policy.update()
-        return float(loss.detach())
-
-    return step
+    return train_step.training_step(policy, optimizer, data, threads=1, autocast=autocast)
 
 
 def _nhwc(frames: torch.Tensor) -> torch.Tensor:

@@ -28,6 +28,7 @@ to the first variant).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import os
@@ -86,13 +87,15 @@ def policy_and_batch(inputs: str, batch: int, down_dims: tuple[int, ...] = (32, 
     return policy, data
 
 
-def training_step(policy, optimizer, batch, threads: int) -> Callable[[], float]:
+def training_step(policy, optimizer, batch, threads: int = 1, autocast: bool = False) -> Callable[[], float]:
     """One optimizer step of `policy` on `batch` as lerobot-train takes it (clip at 10, zero grads, EMA update),
-    as a callable the benchmarks time; torch runs it on `threads` threads and goes back to one."""
+    as a callable the benchmarks time; torch runs it on `threads` threads and goes back to one. `autocast`: the
+    forward under bf16 autocast, as LeRobot's use_amp runs it on a CPU."""
 
     def step() -> float:
         torch.set_num_threads(threads)
-        loss, _ = policy.forward(batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16) if autocast else contextlib.nullcontext():
+            loss, _ = policy.forward(batch)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(policy.get_optim_params(), 10.0)
         optimizer.step()
