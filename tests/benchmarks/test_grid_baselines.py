@@ -173,7 +173,7 @@ def test_report_says_what_each_method_was_given(tmp_path):
         record["nfe"] = 10.0 if m == "diffusion_ema" else 1.0
         ResultsFile(tmp_path / "results.jsonl").append(record)
     report = write_report(tmp_path).read_text()
-    assert "## What each method was given" in report and "8000 steps at batch 64" in report
+    assert "## What each method was given" in report and "20000 steps at batch 64" in report
     for row in (
         "| FocalPolicy | 0.001 | cosine, 100 warm-up | EMA weights; consistency target EMA | 12 / 4 | "
         "9-d state + 39-d object poses | 1 |",

@@ -60,7 +60,8 @@ def test_cpu_fair_is_cpu_plateau_with_the_papers_estimator_and_demos_per_seed():
     assert (plateau["periodic_eval"], plateau["demos_per_seed"]) == ("fixed", False)
     differ = {k for k in fair if fair[k] != plateau[k]}
     # and the baselines' own learning rates (the lr sweep's choice, docs/benchmarks/lr_sweep_fair)
-    assert differ == {"name", "notes", "periodic_eval", "demos_per_seed", "method_lr"}
+    assert differ == {"name", "notes", "periodic_eval", "demos_per_seed", "method_lr", "steps", "eval_every"}
+    assert fair["steps"] // fair["eval_every"] == plateau["steps"] // plateau["eval_every"] == 16  # evaluations
     assert dict(fair["method_lr"]) == {"diffusion_ema": 1e-3, "act": 1e-4}
 
 

@@ -455,8 +455,8 @@ def test_preset_from_dict_round_trips_and_reads_older_grids(tmp_path):
 
     out = tmp_path / "out"
     specs, grid = build_specs(parse_args(["--preset", "cpu_fair", "--tasks", "pick-place,basketball", "--methods",
-                                          "focal,act|wo_fco_las", "--seeds", "2,0", "--steps", "1000", "--out",
-                                          str(out), "--work", str(tmp_path / "w")]))
+                                          "focal,act|wo_fco_las", "--seeds", "2,0", "--steps", "1000",
+                                          "--eval-every", "500", "--out", str(out), "--work", str(tmp_path / "w")]))
     out.mkdir()
     (out / "grid.json").write_text(json.dumps(grid, default=str))
     rebuilt = specs_of_grid(out, tmp_path / "w")
