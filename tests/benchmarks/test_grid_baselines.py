@@ -69,7 +69,7 @@ def test_dp3_gets_focal_pcs_encoder_and_cloud_with_dp3_chunking():
     assert not any(a.endswith("_feature_dim=64") for a in _args("dp3", PRESETS["paper"]))  # DP3's own 64 there
     assert given("dp3", json.loads(json.dumps(preset.to_dict()))) | {"lr": ""} == {
         "lr": "", "schedule": "cosine, 100 warm-up", "acts": "EMA weights", "chunk": "16 / 8",
-        "inputs": "512-pt cloud + 9-d state"}
+        "inputs": "512-pt cloud + 9-d state", "steps": str(preset.steps)}
 
 
 def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):
@@ -163,7 +163,7 @@ def test_report_says_what_each_method_was_given(tmp_path):
     from lerobot_focal.benchmarks.grid.report import write_report
     from tests.benchmarks.test_grid_estimators import _record
 
-    preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),))
+    preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),), method_steps=(("act", 12000),))
     methods = ["focal", "diffusion_ema", "act", "wo_fco_las"]
     grid = {"preset": json.loads(json.dumps(preset.to_dict())), "overrides": {}, "tasks": ["disassemble"],
             "methods": methods, "seeds": [0]}
@@ -173,16 +173,43 @@ def test_report_says_what_each_method_was_given(tmp_path):
         record["nfe"] = 10.0 if m == "diffusion_ema" else 1.0
         ResultsFile(tmp_path / "results.jsonl").append(record)
     report = write_report(tmp_path).read_text()
-    assert "## What each method was given" in report and "20000 steps at batch 64" in report
+    assert "## What each method was given" in report and "batch 64" in report and "20000 steps" in report
     for row in (
-        "| FocalPolicy | 0.001 | cosine, 100 warm-up | EMA weights; consistency target EMA | 12 / 4 | "
+        "| FocalPolicy | 0.001 | cosine, 100 warm-up | 20000 | EMA weights; consistency target EMA | 12 / 4 | "
         "9-d state + 39-d object poses | 1 |",
-        "| DP with EMA (DDIM 10) | 0.0003 | cosine, 100 warm-up | EMA weights | 16 / 8 | "
+        "| DP with EMA (DDIM 10) | 0.0003 | cosine, 100 warm-up | 20000 | EMA weights | 16 / 8 | "
         "9-d state + 39-d object poses | 10 |",
-        "| ACT | 1e-05 | constant | online weights | 50 / 50 | 9-d state + 39-d object poses | 1 |",
-        "| w/o FCO & LAS | 0.001 | cosine, 100 warm-up | EMA weights; consistency target online | 12 / 4 |",
+        "| ACT | 1e-05 | constant | 12000 | online weights | 50 / 50 | 9-d state + 39-d object poses | 1 |",
+        "| w/o FCO & LAS | 0.001 | cosine, 100 warm-up | 20000 | EMA weights; consistency target online | 12 / 4 |",
     ):
         assert row in report, row
+
+
+def test_a_method_trains_to_its_own_budget_with_as_many_evaluations(tmp_path):
+    """method_steps: ACT's runs train 12000 steps with 16 evaluations (every 750), every other method the preset's
+    20000; a budget that does not divide into the evaluations is refused; and a results folder recorded before
+    the field existed accepts an invocation that sets it (the field is new there, not changed)."""
+    import dataclasses
+
+    from lerobot_focal.benchmarks.grid.run import train_command
+
+    preset = PRESETS["cpu_fair"].with_overrides(method_steps=(("act", 12000),))
+    argv = ["--preset", "cpu_fair", "--tasks", "disassemble", "--methods", "focal,act", "--seeds", "0",
+            "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w")]
+    specs = {s.method: s for s in build_specs(parse_args(argv))[0]}
+    assert (specs["focal"].preset.steps, specs["focal"].preset.eval_every) == (20000, 1250)
+    act = preset.for_method("act")
+    assert (act.steps, act.eval_every) == (12000, 750) and preset.for_method("focal") is preset
+    command = train_command(dataclasses.replace(specs["act"], preset=act))
+    assert "--steps=12000" in command and "--env_eval_freq=750" in command and "--save_freq=750" in command
+    with pytest.raises(ValueError, match="not a multiple of the preset's 16 evaluations"):
+        PRESETS["cpu_fair"].with_overrides(method_steps=(("act", 12001),)).for_method("act")
+    _, grid = build_specs(parse_args(argv))
+    recorded = json.loads(json.dumps(grid, default=str))
+    del recorded["preset"]["method_steps"]  # as grid.json was written before the field existed
+    later = json.loads(json.dumps(grid, default=str))
+    later["preset"]["method_steps"] = [["act", 12000]]
+    assert merged_grid(recorded, later, tmp_path)["methods"] == ["focal", "act"]
 
 
 def test_dp3_is_compared_with_focal_on_the_same_point_clouds(tmp_path):

@@ -70,6 +70,10 @@ class GridPreset:
     # Learning rates of single methods, (method, lr) pairs: each baseline at the rate a sweep chose for it (or its
     # authors' default, see methods.py); every other method trains at ``lr``. ``--lr`` sets every method's.
     method_lr: tuple[tuple[str, float], ...] = ()
+    # Step budgets of single methods, (method, steps) pairs: a method whose curve plateaus at another budget than
+    # the preset's (measured, as the plateau probe measures it) trains to its own, with the same number of
+    # evaluations (every steps / (self.steps / eval_every) steps); every other method trains ``steps``.
+    method_steps: tuple[tuple[str, int], ...] = ()
     # ACT's transformer width (dim_model, dim_feedforward); None = ACT's defaults (512, 3200).
     act_width: tuple[int, int] | None = None
     # Learning-rate schedule after the warm-up, for the methods that have one (focal's family and the diffusion
@@ -98,6 +102,18 @@ class GridPreset:
         if "lr" in self.overridden:
             return self.lr
         return dict(self.method_lr).get(method, self.lr if own_lr is None else own_lr)
+
+    def for_method(self, method: str) -> GridPreset:
+        """The preset a run of `method` trains with: its own step budget (``method_steps``) if it has one, with the
+        same number of evaluations; else this preset."""
+        steps = dict(self.method_steps).get(method)
+        if steps is None or steps == self.steps:
+            return self
+        evaluations = self.steps // self.eval_every
+        if steps % evaluations:
+            raise ValueError(f"method_steps gives {method} {steps} steps, not a multiple of the preset's "
+                             f"{evaluations} evaluations: choose a multiple of {evaluations}")
+        return replace(self, steps=steps, eval_every=steps // evaluations)
 
     def _folder(self, fields: tuple[str, ...] | None = None) -> str:
         parts = [f"{k}={_folder_value(getattr(self, k))}" for k in self.overridden if fields is None or k in fields]

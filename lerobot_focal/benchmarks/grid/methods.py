@@ -312,4 +312,5 @@ def given(name: str, preset: dict) -> dict[str, str]:
         inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
         if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
             inputs += " + 39-d object poses"
-    return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs}
+    return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs,
+            "steps": str(p.for_method(name).steps)}

@@ -434,17 +434,18 @@ def write_report(out_dir: Path) -> Path:
 def _given_table(methods: list[str], label: dict, preset: dict, agg: dict) -> list[str]:
     """One row per method: what it was given (the training arguments the grid passed) and its measured NFE."""
     rows = ["## What each method was given", "",
-            f"Every method: {preset['steps']} steps at batch {preset['batch_size']}, the same demos and evaluations. "
-            "NFE: network evaluations per chunk, measured on the final checkpoints.", "",
-            "| Method | lr | schedule | acts with | chunk (predicted / executed) | inputs | NFE per chunk |",
-            "|---|---|---|---|---|---|---|"]
+            f"Every method: batch {preset['batch_size']}, the same demos and evaluations; {preset['steps']} steps "
+            "unless the preset gives a method its own budget (method_steps). NFE: network evaluations per chunk, "
+            "measured on the final checkpoints.", "",
+            "| Method | lr | schedule | steps | acts with | chunk (predicted / executed) | inputs | NFE per chunk |",
+            "|---|---|---|---|---|---|---|---|"]
     for m in methods:
         if m not in METHODS:
             continue
         g = given(m, preset)
         nfe = mean_std([agg[m][t]["nfe"][0] for t in agg[m]])[0]
-        rows.append(f"| {label[m]} | {g['lr']} | {g['schedule']} | {g['acts']} | {g['chunk']} | {g['inputs']} | "
-                    f"{nfe:.0f} |")
+        rows.append(f"| {label[m]} | {g['lr']} | {g['schedule']} | {g['steps']} | {g['acts']} | {g['chunk']} | "
+                    f"{g['inputs']} | {nfe:.0f} |")
     return rows + [""]
 
 

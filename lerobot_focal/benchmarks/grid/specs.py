@@ -49,8 +49,9 @@ def checkpoint_of(run_dir: Path) -> Path:
 def make_specs(preset: GridPreset, tasks: Sequence[str], phases: Sequence[Sequence[str]], seeds: Sequence[int],
                work: Path) -> list[RunSpec]:
     """Every run of a grid, phase-major, then seed-major: a cut-short grid has whole phases, and within one
-    whole seeds. A method the preset caps (``seed_caps``) runs on the first of the seeds only."""
-    return [RunSpec(t, m, s, preset, task_data(work, t, preset, METHODS[m].obs_type, s), work)
+    whole seeds. A method the preset caps (``seed_caps``) runs on the first of the seeds only; one with its own
+    step budget (``method_steps``) gets it in its run's preset."""
+    return [RunSpec(t, m, s, preset.for_method(m), task_data(work, t, preset, METHODS[m].obs_type, s), work)
             for phase in phases for s in seeds for t in tasks for m in phase
             if s in capped_seeds(preset.seed_caps, m, seeds)]
 
