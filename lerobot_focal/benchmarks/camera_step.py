@@ -39,7 +39,6 @@ import torch
 
 from lerobot_focal.benchmarks import train_step
 from lerobot_focal.benchmarks.policy_speed import ACTION_DIM, ENV_DIM, STATE_DIM, benchmark_features, time_ms
-from lerobot_focal.benchmarks.train_step import dataset_clouds
 from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 
@@ -148,7 +147,8 @@ def run(out: Path, batch: int = 64, repeats: int = 10, loss_steps: int = 200, cl
         image_loss_steps: int = 40) -> dict:
     torch.set_num_threads(1)
     g = torch.Generator().manual_seed(2)
-    clouds = dataset_clouds(clouds_root, batch) if clouds_root else torch.randn(batch, 2, 512, 3, generator=g)
+    clouds = (train_step.dataset_clouds(clouds_root, batch) if clouds_root
+              else torch.randn(batch, 2, 512, 3, generator=g))
     if clouds.shape[2] != 512:
         raise SystemExit(f"camera-step compares 512- and 256-point clouds; {clouds_root} holds {clouds.shape[2]}-point "
                          "clouds (collect with --num_points 512)")

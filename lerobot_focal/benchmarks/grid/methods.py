@@ -69,7 +69,8 @@ def _encoder_widths(preset: GridPreset) -> list[str]:
     return [] if dim is None else [f"--policy.pointcloud_feature_dim={dim}", f"--policy.state_feature_dim={dim}"]
 
 
-def _camera(obs_type: str) -> bool:
+def is_camera(obs_type: str) -> bool:
+    """Whether a method of this focal_metaworld obs type observes the camera (pixels, pixels_agent_pos)."""
     return obs_type.startswith("pixels")
 
 
@@ -82,7 +83,7 @@ def _image_args(preset: GridPreset) -> list[str]:
 
 
 def _focal_inputs(preset: GridPreset, obs_type: str) -> list[str]:
-    if _camera(obs_type):  # one RGB camera + the 9-d state
+    if is_camera(obs_type):  # one RGB camera + the 9-d state
         return [*_encoder_widths(preset), "--policy.use_env_state=false", "--policy.use_images=true",
                 *_image_args(preset)]
     # With a point cloud focal reads it and the 9-d state (DP3's inputs); without one, the object poses.
@@ -110,7 +111,7 @@ DP3_CHUNKING = (
 
 
 def _diffusion_inputs(preset: GridPreset, obs_type: str) -> list[str]:
-    if _camera(obs_type):
+    if is_camera(obs_type):
         return _image_args(preset) + list(DP3_CHUNKING)
     _require_env_state(preset, "diffusion")
     return list(DP3_CHUNKING)
@@ -139,7 +140,7 @@ def _act_inputs(preset: GridPreset, obs_type: str) -> list[str]:
       CPU cores, 10 h for the 8000 steps of a CPU preset; the CPU presets shrink every network (the U-Net is
       32/64/128 instead of 512/1024/2048) and this is ACT's share of that. ``None`` keeps ACT's default size.
     """
-    if _camera(obs_type):
+    if is_camera(obs_type):
         # ACT's authors start from ImageNet weights, which cannot be downloaded here: its ResNet-18 trains from
         # scratch (with its own BatchNorm, frozen only for pretrained weights), the one change images force.
         args = ["--policy.pretrained_backbone_weights=null"]
@@ -306,7 +307,7 @@ def given(name: str, preset: dict) -> dict[str, str]:
         chunk = f"{_flag(args, 'horizon')} / {_flag(args, 'n_action_steps')}"
         acts = "EMA weights" if method.policy_type in ("diffusion_ema", "dp3") else "online weights (no EMA)"
     obs = method.obs_type_for(p)
-    if _camera(obs):
+    if is_camera(obs):
         inputs = f"RGB {p.image_size}² (crop {p.image_crop}²) + 9-d state"
     else:
         inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"

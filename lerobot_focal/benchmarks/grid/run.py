@@ -22,7 +22,7 @@ from lerobot_focal.console import console_script
 
 from .demos import collect_task_data
 from .grid_presets import GridPreset
-from .methods import METHODS
+from .methods import METHODS, is_camera
 from .metrics import eval_curve, top_k_mean
 from .processes import RunFailed, refuse_if_stopping, run_logged
 from .results import RunRecord
@@ -44,7 +44,7 @@ UPDATE_RE = re.compile(r"\bupdt_s:([0-9.]+)")
 
 def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
     p = spec.preset
-    camera = spec.obs_type.startswith("pixels")
+    camera = is_camera(spec.obs_type)
     # LeRobot renders evaluation episodes to video; the grid needs none (and no blank frames to encode), unless
     # the policy observes the camera: then frames are its input, at the size its demos were recorded.
     size = p.image_size if camera else 64
