@@ -14,6 +14,7 @@ from lerobot_focal.config_errors import ConfigError, reports_config_errors
 from lerobot_focal.envs.focal_adroit import FocalAdroitEnvConfig
 from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 from lerobot_focal.policy import FocalConfig, FocalConfigError
+from lerobot_focal.policy.depth_cloud_settings import DepthCloudConfig
 from lerobot_focal.policy.diffusion_fco import DiffusionFcoConfig
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.robots.ur10e import UR10eConfig
@@ -61,8 +62,8 @@ FOCAL_BAD = {
     "time_scale": dict(time_scale=0.0),
     "pointcloud_feature_dim": dict(pointcloud_feature_dim=0),
     "state_feature_dim": dict(state_feature_dim=-64),
-    "pointcloud_num_points": dict(pointcloud_num_points=0),
-    "pointcloud_voxel_size": dict(pointcloud_voxel_size=-0.01),
+    "depth_cloud.num_points": dict(depth_cloud=DepthCloudConfig(num_points=0)),
+    "depth_cloud.voxel_size": dict(depth_cloud=DepthCloudConfig(voxel_size=-0.01)),
     "crop_shape": dict(crop_shape=(0, 84)),
     "vision_backbone": dict(vision_backbone="vit_b_16"),
     "use_group_norm=false": dict(pretrained_backbone_weights="ResNet18_Weights.IMAGENET1K_V1"),

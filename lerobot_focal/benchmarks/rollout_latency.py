@@ -69,7 +69,7 @@ def variants(crop_min: tuple[float, ...], crop_max: tuple[float, ...], image_res
     }
     return [
         Variant("pointcloud", "512-point cloud from depth + state",
-                ("--policy.use_images=false", f"--policy.pointcloud_from_depth={DEPTH_KEY}", *box)),
+                ("--policy.use_images=false", f"--policy.depth_cloud.from_depth={DEPTH_KEY}", *box)),
         Variant("image", f"RGB (resized to {image_resize[0]}x{image_resize[1]}, crop {image_crop[0]}x{image_crop[1]}) "
                 "+ state",
                 ("--policy.use_images=true", f"--policy.resize_shape=[{image_resize[0]},{image_resize[1]}]",

@@ -15,9 +15,10 @@ action window at t removes that off-by-one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
-from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.configs.types import FeatureType
 from lerobot.optim import DiffuserSchedulerConfig
 from lerobot.policies.rtc.configuration_rtc import RTCConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -33,14 +34,14 @@ from lerobot_focal.config_errors import (
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.policy.ablations import ABLATIONS, PAPER_METHOD, resolve_method_switches
 from lerobot_focal.policy.depth_cloud_settings import (
-    camera_name,
-    cloud_feature,
+    DepthCloudConfig,
     declare_cloud_input,
     validate_depth_cloud,
 )
 from lerobot_focal.policy.ema import check_ema_settings
 from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
+from lerobot_focal.policy.saved_config_upgrade import install as read_configs_saved_before_moves
 from lerobot_focal.policy.time_samplers import TimeSamplerSpec
 
 # ABLATIONS and PAPER_METHOD live in `ablations`; they stay importable from here, where users found them.
@@ -121,24 +122,9 @@ class FocalConfig(PreTrainedConfig):
         use_pointcloud: Read the point cloud when the dataset has one.
         use_pointcloud_color: Use xyz+rgb when the cloud has 6 channels (xyz only otherwise).
         pointcloud_feature_dim: Output width of the DP3 point-cloud MLP encoder.
-        pointcloud_from_depth: A depth key (e.g. "observation.images.front_depth") to turn into the point cloud in
-            the preprocessor, for robots such as `ur10e` that record depth because LeRobot 0.6.1 cannot record a
-            point cloud. It adds `pointcloud_key` (P, 3) to the input features and a `focal_depth_to_pointcloud`
-            step to the preprocessor (back-projection → crop → farthest point sampling with
-            `lerobot_focal.geometry.pointcloud`), identical at training (decoded depth video) and at rollout (the
-            robot's raw uint16 frame); the camera info and crop are saved in that step, with the checkpoint.
-        pointcloud_camera_info: cameras.json with the depth camera's intrinsics and pose (the robot writes it on
-            connect: $HF_LEROBOT_CALIBRATION/robots/ur10e/<id>_cameras.json); None → the dataset's
-            `meta/cameras.json`.
-        pointcloud_camera: Entry of that file; None → derived from the depth key ("…front_depth" → "front").
-        pointcloud_crop_min: Lower corner of the workspace box the cloud is cropped to (robot base frame, m).
-        pointcloud_crop_max: Upper corner of that box.
-        pointcloud_num_points: Points kept by farthest-point sampling.
-        pointcloud_voxel_size: > 0: voxel-grid downsampling before sampling (faster on large frames).
-        pointcloud_depth_unit: Unit of *float* depth from a decoded dataset ("mm", LeRobot's default
-            `--dataset.depth_output_unit`, or "m"); integer frames (the robot's raw uint16) are raw sensor units
-            times the camera's depth_scale.
-        pointcloud_min_depth: Depths below this (m) count as "no return" (LeRobot's codec decodes 0 as 10 mm).
+        depth_cloud: Depth → point cloud in the preprocessor, for robots that record depth
+            (`--policy.depth_cloud.from_depth=observation.images.front_depth` and a crop box); its fields are
+            documented in `DepthCloudConfig`, and a checkpoint saves them with the camera's intrinsics.
         use_state: Read `observation.state` (proprioception) through a small MLP.
         use_env_state: Read `observation.environment_state` (e.g. MetaWorld's object poses) through the same kind
             of MLP; off by default, as in the paper (point cloud + state).
@@ -215,6 +201,13 @@ class FocalConfig(PreTrainedConfig):
     """
 
     # Each field is documented once, in the Args block above.
+    #: Flat keys of configs saved before the depth settings became the `depth_cloud` group (saved_config_upgrade).
+    MOVED_FIELDS: ClassVar[dict[str, tuple[str, str]]] = {
+        f"pointcloud_{name}": ("depth_cloud", name)
+        for name in ("from_depth", "camera_info", "camera", "crop_min", "crop_max", "num_points", "voxel_size",
+                     "depth_unit", "min_depth")
+    }
+
     # --- windows -------------------------------------------------------------------------------------------
     n_obs_steps: int = 2
     chunk_size: int = 4
@@ -228,15 +221,7 @@ class FocalConfig(PreTrainedConfig):
     use_pointcloud: bool = True
     use_pointcloud_color: bool = False
     pointcloud_feature_dim: int = 64
-    pointcloud_from_depth: str | None = None
-    pointcloud_camera_info: str | None = None
-    pointcloud_camera: str | None = None
-    pointcloud_crop_min: tuple[float, float, float] | None = None
-    pointcloud_crop_max: tuple[float, float, float] | None = None
-    pointcloud_num_points: int = 512
-    pointcloud_voxel_size: float = 0.0
-    pointcloud_depth_unit: str = "mm"
-    pointcloud_min_depth: float = 0.05
+    depth_cloud: DepthCloudConfig = field(default_factory=DepthCloudConfig)
     use_state: bool = True
     use_env_state: bool = False
     state_feature_dim: int = 64
@@ -351,8 +336,7 @@ class FocalConfig(PreTrainedConfig):
             )
         check_ema_settings(self)
         self._validate_network_and_inputs()
-        if self.pointcloud_from_depth is not None:
-            validate_depth_cloud(self)
+        validate_depth_cloud(self)
         # Building the specs validates every method switch and loss weight, with a message naming the range.
         self.objective_spec()
         self.time_sampler_spec()
@@ -370,12 +354,7 @@ class FocalConfig(PreTrainedConfig):
         require_positive(
             pointcloud_feature_dim=self.pointcloud_feature_dim, state_feature_dim=self.state_feature_dim,
             spatial_softmax_num_keypoints=self.spatial_softmax_num_keypoints, time_scale=self.time_scale,
-            pointcloud_num_points=self.pointcloud_num_points,
         )
-        require_non_negative(pointcloud_voxel_size=self.pointcloud_voxel_size,
-                             pointcloud_min_depth=self.pointcloud_min_depth)
-        if self.pointcloud_depth_unit not in ("mm", "m"):
-            raise ValueError(f"pointcloud_depth_unit must be 'mm' or 'm', got {self.pointcloud_depth_unit!r}.")
         for name in ("resize_shape", "crop_shape"):
             shape = getattr(self, name)
             if shape is not None and (len(shape) != 2 or min(shape) < 1):
@@ -421,17 +400,9 @@ class FocalConfig(PreTrainedConfig):
                 f"'high' one; got {cutoff}{' (the default, L/2)' if self.freq_cutoff is None else ''}."
             )
 
-    @property
-    def pointcloud_camera_name(self) -> str | None:
-        """Camera whose intrinsics unproject `pointcloud_from_depth` ("observation.images.front_depth" → "front")."""
-        return camera_name(self)
-
-    def depth_pointcloud_feature(self) -> PolicyFeature:
-        return cloud_feature(self)
-
     def set_dataset_feature_metadata(self, features: dict) -> None:
         """LeRobot hook (`make_policy`, after it filled `input_features` from the dataset): with
-        `pointcloud_from_depth`, declare the cloud the preprocessor makes from the dataset's depth as an input."""
+        `depth_cloud.from_depth`, declare the cloud the preprocessor makes from the dataset's depth as an input."""
         declare_cloud_input(self, features)
 
     # --- derived -------------------------------------------------------------------------------------------
@@ -546,3 +517,6 @@ class FocalConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
+
+
+read_configs_saved_before_moves()

@@ -1,11 +1,11 @@
 """The `focal_depth_to_pointcloud` processor step: a depth frame becomes the policy's point cloud.
 
 For robots such as `ur10e` that record `observation.images.<cam>_depth` (LeRobot 0.6.1 cannot record a point
-cloud), `FocalConfig.pointcloud_from_depth` adds this registered step to the preprocessor. It runs after "add
+cloud), `FocalConfig.depth_cloud.from_depth` adds this registered step to the preprocessor. It runs after "add
 batch dim" and builds `observation.pointcloud` with the same `lerobot_focal.geometry.pointcloud` code the
 simulated benchmarks use. Its config (camera intrinsics + extrinsics, crop box, size, units) is saved in
 `policy_preprocessor.json`, so `lerobot-rollout --policy.path=…` rebuilds the identical step; the camera info
-is found here, from `cameras.json` (the robot writes it on connect).
+is found here (`resolve_camera_info_path`), from the `cameras.json` the robot writes on connect.
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
                     f"{DEPTH_TO_POINTCLOUD_STEP}: '{self.depth_key}' looks like metres "
                     f"(median {np.median(valid):.3g}), "
                     "but float depth is read as millimetres. Train without --dataset.depth_output_unit=m, or set "
-                    "--policy.pointcloud_depth_unit=m."
+                    "--policy.depth_cloud.depth_unit=m."
                 )
         clouds = np.stack([self._one(f, scale) for f in frames])
         if not np.any(clouds):
@@ -208,12 +208,28 @@ class DepthToPointCloudProcessorStep(ObservationProcessorStep):
         return {**features, PipelineFeatureType.OBSERVATION: obs}
 
 
-def _resolve_camera_info_path(config: FocalConfig) -> Path:
-    if config.pointcloud_camera_info:
-        path = Path(config.pointcloud_camera_info).expanduser()
+def _recording_camera_files(robot_type: str | None) -> list[Path]:
+    """The cameras.json files the dataset's robot type wrote on connect, here (one per robot id)."""
+    if not robot_type:
+        return []
+    from lerobot.utils.constants import HF_LEROBOT_CALIBRATION
+
+    return sorted((HF_LEROBOT_CALIBRATION / "robots" / robot_type).glob("*_cameras.json"))
+
+
+def resolve_camera_info_path(config: FocalConfig) -> Path:
+    """Where the depth camera's intrinsics and pose come from: `depth_cloud.camera_info`, else the dataset's
+    `meta/cameras.json`, else the one file the dataset's robot type wrote when it connected to record.
+
+    The last is the usual case (record, then train on the machine that recorded): no file is copied by hand, and
+    the checkpoint keeps what was read in its `focal_depth_to_pointcloud` step.
+    """
+    settings = config.depth_cloud
+    if settings.camera_info:
+        path = Path(settings.camera_info).expanduser()
         if not path.is_file():
             raise FileNotFoundError(
-                f"--policy.pointcloud_camera_info={config.pointcloud_camera_info}: no such file. It is the "
+                f"--policy.depth_cloud.camera_info={settings.camera_info}: no such file. It is the "
                 "cameras.json the ur10e robot writes on every connect to "
                 "$HF_LEROBOT_CALIBRATION/robots/ur10e/<robot id or ur10e>_cameras.json."
             )
@@ -222,34 +238,48 @@ def _resolve_camera_info_path(config: FocalConfig) -> Path:
     root = getattr(meta, "root", None)
     if root is not None and (Path(root) / "meta" / "cameras.json").is_file():
         return Path(root) / "meta" / "cameras.json"
+    robot_type = getattr(meta, "robot_type", None)
+    recorded = _recording_camera_files(robot_type)
+    if len(recorded) == 1:
+        logger.info("depth camera intrinsics and pose for %s: %s (written by the %s robot on connect)",
+                    settings.from_depth, recorded[0], robot_type)
+        return recorded[0]
+    if recorded:
+        raise FileNotFoundError(
+            f"depth_cloud.from_depth={settings.from_depth!r}: the dataset was recorded by a {robot_type!r} robot, "
+            f"and robots of that type wrote several camera files here: {[str(p) for p in recorded]}. Pass the one "
+            "of the robot (its --robot.id) that recorded it as --policy.depth_cloud.camera_info=<path>."
+        )
     where = f"{Path(root) / 'meta' / 'cameras.json'} does not exist" if root is not None else "no dataset is known"
     raise FileNotFoundError(
-        f"pointcloud_from_depth={config.pointcloud_from_depth!r} needs the depth camera's intrinsics and pose, "
-        f"which LeRobot does not store ({where}). The ur10e robot writes them on every connect to "
+        f"depth_cloud.from_depth={settings.from_depth!r} needs the depth camera's intrinsics and pose, "
+        f"which LeRobot does not store ({where}, and no {robot_type or 'robot'} camera file is in "
+        "$HF_LEROBOT_CALIBRATION/robots/<robot type>/). The ur10e robot writes them on every connect to "
         "$HF_LEROBOT_CALIBRATION/robots/ur10e/<robot id or ur10e>_cameras.json (default ~/.cache/huggingface/"
-        "lerobot/calibration): copy that file to <dataset root>/meta/cameras.json, or pass "
-        "--policy.pointcloud_camera_info=<path to it>."
+        "lerobot/calibration): train where the dataset was recorded, pass "
+        "--policy.depth_cloud.camera_info=<path to that file>, or put it at <dataset root>/meta/cameras.json."
     )
 
 
 def make_depth_to_pointcloud_step(config: FocalConfig) -> DepthToPointCloudProcessorStep:
-    """The step for `config.pointcloud_from_depth`, with the camera info read from cameras.json."""
-    path = _resolve_camera_info_path(config)
+    """The step for `config.depth_cloud`, with the camera info read from cameras.json."""
+    settings = config.depth_cloud
+    path = resolve_camera_info_path(config)
     infos = json.loads(path.read_text())
-    camera = config.pointcloud_camera_name
+    camera = settings.camera_name
     if camera not in infos:
         raise KeyError(
             f"{path} has no camera {camera!r} (it has {sorted(infos)}), needed for "
-            f"'{config.pointcloud_from_depth}'. Pass --policy.pointcloud_camera=<one of those>."
+            f"'{settings.from_depth}'. Pass --policy.depth_cloud.camera=<one of those>."
         )
     return DepthToPointCloudProcessorStep(
-        depth_key=config.pointcloud_from_depth,
+        depth_key=settings.from_depth,
         pointcloud_key=config.pointcloud_key,
         camera_info=infos[camera],
-        crop_min=list(config.pointcloud_crop_min),
-        crop_max=list(config.pointcloud_crop_max),
-        num_points=config.pointcloud_num_points,
-        voxel_size=config.pointcloud_voxel_size,
-        float_depth_unit=config.pointcloud_depth_unit,
-        min_depth=config.pointcloud_min_depth,
+        crop_min=list(settings.crop_min),
+        crop_max=list(settings.crop_max),
+        num_points=settings.num_points,
+        voxel_size=settings.voxel_size,
+        float_depth_unit=settings.depth_unit,
+        min_depth=settings.min_depth,
     )

@@ -44,7 +44,7 @@ def make_focal_pre_post_processors(
     meta = getattr(config, "_runtime_dataset_meta", None)  # set by LeRobot's make_policy
     check_dataset_stats(dataset_stats, [*config.used_observation_keys, ACTION], meta)
     stats = adapt_dataset_stats(config, dataset_stats) if dataset_stats is not None else None
-    depth_step = make_depth_to_pointcloud_step(config) if config.pointcloud_from_depth is not None else None
+    depth_step = make_depth_to_pointcloud_step(config) if config.depth_cloud.enabled else None
     used = {k: config.input_features[k] for k in config.used_observation_keys}
     s = make_default_policy_processor_steps(config, stats)
     normalize = NormalizerProcessorStep(

@@ -105,8 +105,9 @@ def adapt_dataset_stats(config: FocalConfig, stats: dict[str, dict[str, Any]]) -
     """The statistics `focal`'s normaliser needs, from a dataset's (a new dict; see the module docstring)."""
     stats = dict(stats)
     key = config.pointcloud_key
-    if config.pointcloud_from_depth is not None and key not in stats:
-        stats[key] = crop_box_stats(config.pointcloud_crop_min, config.pointcloud_crop_max)
+    depth = config.depth_cloud
+    if depth.enabled and key not in stats:
+        stats[key] = crop_box_stats(depth.crop_min, depth.crop_max)
     if key in stats and key in config.input_features:
         stats[key] = per_channel_pointcloud_stats(stats[key], config.input_features[key].shape[-1])
     used = {k: config.input_features[k] for k in config.used_observation_keys}

@@ -97,7 +97,7 @@ def trained(tmp_path_factory):
     args = [
         str(BIN / "lerobot-train"), "--policy.type=focal", "--policy.push_to_hub=false", "--policy.device=cpu",
         "--policy.down_dims=[16,32]", "--policy.use_images=true", "--policy.spatial_softmax_num_keypoints=8",
-        f"--policy.pointcloud_from_depth={DEPTH_KEY}", CROP[0],
+        f"--policy.depth_cloud.from_depth={DEPTH_KEY}", CROP[0],
         CROP[1], "--policy.inference_noise_scale=0",
         "--dataset.repo_id=local/ur10e_rollout_bench", f"--dataset.root={root}", "--steps=3", "--batch_size=4",
         "--num_workers=0", "--save_freq=3", "--log_freq=3", "--wandb.enable=false", f"--output_dir={out}",

@@ -9,6 +9,7 @@ own 12-bit depth quantiser.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from lerobot.processor.converters import batch_to_transition, transition_to_batc
 
 from lerobot_focal.policy import FocalConfig, FocalPolicy, make_focal_pre_post_processors
 from lerobot_focal.policy.configuration_focal import FocalConfigError
+from lerobot_focal.policy.depth_cloud_settings import DepthCloudConfig
 from lerobot_focal.policy.processor_focal import DEPTH_TO_POINTCLOUD_STEP, DepthToPointCloudProcessorStep
 
 from .helpers import SMALL_UNET
@@ -125,7 +127,7 @@ def test_missing_depth_key_says_what_to_do():
         _step()({"observation": {"observation.state": torch.zeros(1, 13)}})
 
 
-def _config(tmp_path, **kw) -> FocalConfig:
+def _config(tmp_path, depth_kw: dict | None = None, **kw) -> FocalConfig:
     path = tmp_path / "cameras.json"
     path.write_text(json.dumps({"front": _camera_info()}))
     args = dict(
@@ -136,13 +138,11 @@ def _config(tmp_path, **kw) -> FocalConfig:
             DEPTH_KEY: PolicyFeature(FeatureType.VISUAL, (1, H, W)),
         },
         output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
-        pointcloud_from_depth=DEPTH_KEY,
-        pointcloud_camera_info=str(path),
-        pointcloud_crop_min=CROP_MIN,
-        pointcloud_crop_max=CROP_MAX,
     )
+    depth = dict(from_depth=DEPTH_KEY, camera_info=str(path), crop_min=CROP_MIN, crop_max=CROP_MAX)
+    depth.update(depth_kw or {})
     args.update(kw)
-    return FocalConfig(**args)
+    return FocalConfig(**args, depth_cloud=DepthCloudConfig(**depth))
 
 
 def _stats() -> dict:
@@ -157,7 +157,7 @@ def test_config_declares_the_pointcloud_input_and_the_policy_reads_it(tmp_path):
     cfg = _config(tmp_path)
     assert cfg.input_features["observation.pointcloud"] == PolicyFeature(FeatureType.STATE, (512, 3))
     assert cfg.used_pointcloud_key == "observation.pointcloud"
-    assert cfg.pointcloud_camera_name == "front"
+    assert cfg.depth_cloud.camera_name == "front"
     # From the command line input_features start empty; LeRobot's make_policy fills them from the dataset and
     # calls this hook, which adds the cloud — or says which depth keys the dataset has.
     cfg2 = _config(tmp_path, input_features={})
@@ -217,23 +217,23 @@ def test_step_config_saves_and_reloads_with_the_pipeline(tmp_path):
 
 
 def test_missing_camera_info_and_crop_say_what_to_do(tmp_path):
-    cfg = _config(tmp_path, pointcloud_camera_info=None)
-    with pytest.raises(FileNotFoundError, match=r"meta/cameras.json.*--policy.pointcloud_camera_info"):
+    cfg = _config(tmp_path, depth_kw=dict(camera_info=None))
+    with pytest.raises(FileNotFoundError, match=r"--policy.depth_cloud.camera_info=.*meta/cameras.json"):
         make_focal_pre_post_processors(cfg, dataset_stats=_stats())
-    cfg = _config(tmp_path, pointcloud_camera_info=str(tmp_path / "nope.json"))
+    cfg = _config(tmp_path, depth_kw=dict(camera_info=str(tmp_path / "nope.json")))
     with pytest.raises(FileNotFoundError, match="_cameras.json"):
         make_focal_pre_post_processors(cfg, dataset_stats=_stats())
-    cfg = _config(tmp_path, pointcloud_camera="wrist")
+    cfg = _config(tmp_path, depth_kw=dict(camera="wrist"))
     with pytest.raises(KeyError, match=r"no camera 'wrist' \(it has \['front'\]\)"):
         make_focal_pre_post_processors(cfg, dataset_stats=_stats())
-    with pytest.raises(FocalConfigError, match="pointcloud_crop_min"):
-        _config(tmp_path, pointcloud_crop_min=None)
+    with pytest.raises(FocalConfigError, match="depth_cloud.crop_min"):
+        _config(tmp_path, depth_kw=dict(crop_min=None))
 
 
 def test_dataset_meta_cameras_json_is_found(tmp_path):
-    """Without --policy.pointcloud_camera_info the step reads `<dataset root>/meta/cameras.json`, via the
+    """Without --policy.depth_cloud.camera_info the step reads `<dataset root>/meta/cameras.json`, via the
     dataset metadata LeRobot's make_policy attaches to the config."""
-    cfg = _config(tmp_path, pointcloud_camera_info=None)
+    cfg = _config(tmp_path, depth_kw=dict(camera_info=None))
     (tmp_path / "ds" / "meta").mkdir(parents=True)
     (tmp_path / "cameras.json").rename(tmp_path / "ds" / "meta" / "cameras.json")
     cfg._runtime_dataset_meta = type("Meta", (), {"root": tmp_path / "ds"})()
@@ -267,3 +267,80 @@ def test_fine_tuning_a_depth_cloud_checkpoint_keeps_the_cloud_normalised(tmp_pat
     depth = torch.from_numpy(_depth_mm().astype(np.float32))[None, None, None].repeat(1, 2, 1, 1, 1)
     out = reloaded({"observation.state": torch.zeros(1, 2, 13), DEPTH_KEY: depth, "action": torch.zeros(1, 12, 7)})
     assert out["observation.pointcloud"].abs().max() <= 1.0  # normalised into [-1, 1], as at training
+
+
+def _meta(root, robot_type="ur10e"):
+    return type("Meta", (), {"root": root, "robot_type": robot_type})()
+
+
+def test_the_recording_robots_camera_file_is_found_without_a_copy(tmp_path, monkeypatch):
+    """A dataset without meta/cameras.json, trained where it was recorded: the step reads the file the dataset's
+    robot type wrote on connect under $HF_LEROBOT_CALIBRATION, and the checkpoint keeps those intrinsics. Two
+    robots of that type wrote files: refused, naming both and the flag that picks one."""
+    import lerobot.utils.constants as constants
+
+    calibration = tmp_path / "calibration"
+    monkeypatch.setattr(constants, "HF_LEROBOT_CALIBRATION", calibration)
+    written = calibration / "robots" / "ur10e" / "arm1_cameras.json"
+    written.parent.mkdir(parents=True)
+    info = {**_camera_info(), "fx": 123.0}
+    written.write_text(json.dumps({"front": info}))
+    cfg = _config(tmp_path, depth_kw=dict(camera_info=None))
+    cfg._runtime_dataset_meta = _meta(tmp_path / "ds")
+    pre, _ = make_focal_pre_post_processors(cfg, dataset_stats=_stats())
+    step = next(s for s in pre.steps if isinstance(s, DepthToPointCloudProcessorStep))
+    assert step.camera_info["fx"] == 123.0
+    (written.parent / "arm2_cameras.json").write_text(json.dumps({"front": _camera_info()}))
+    with pytest.raises(FileNotFoundError, match=r"arm1_cameras.json.*arm2_cameras.json.*depth_cloud.camera_info"):
+        make_focal_pre_post_processors(cfg, dataset_stats=_stats())
+    # Another robot type's files are not taken for this dataset's.
+    cfg._runtime_dataset_meta = _meta(tmp_path / "ds", robot_type="so101_follower")
+    with pytest.raises(FileNotFoundError, match="no so101_follower camera file"):
+        make_focal_pre_post_processors(cfg, dataset_stats=_stats())
+
+
+def test_a_config_saved_with_the_flat_depth_keys_still_loads(tmp_path):
+    """Checkpoints saved before the depth settings became `depth_cloud` hold flat `pointcloud_*` keys: they load
+    through LeRobot's own readers (`--policy.path` and a resumed run's train_config.json), into the group, and a
+    value given the new way on the command line wins."""
+    from draccus.parsers.decoding import decode
+    from lerobot.configs import PreTrainedConfig
+    from lerobot.configs.train import TrainPipelineConfig
+
+    cfg = _config(tmp_path)
+    (tmp_path / "new").mkdir()
+    cfg._save_pretrained(tmp_path / "new")
+    saved = json.loads((tmp_path / "new" / "config.json").read_text())
+    flat = {k: v for k, v in saved.items() if k != "depth_cloud"}
+    flat.update({f"pointcloud_{k}": v for k, v in saved["depth_cloud"].items()})
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "config.json").write_text(json.dumps(flat))
+
+    loaded = PreTrainedConfig.from_pretrained(tmp_path / "old")
+    assert loaded.depth_cloud == cfg.depth_cloud
+    assert loaded.input_features == cfg.input_features
+    overridden = PreTrainedConfig.from_pretrained(tmp_path / "old", cli_overrides=["--depth_cloud.num_points=256"])
+    assert overridden.depth_cloud.num_points == 256 and overridden.depth_cloud.crop_min == cfg.depth_cloud.crop_min
+    # A train_config.json decodes its policy through LeRobot's choice registry.
+    pipeline = decode(TrainPipelineConfig, {"dataset": {"repo_id": "local/x"}, "policy": flat})
+    assert pipeline.policy.depth_cloud == cfg.depth_cloud
+    # Unknown keys are still refused, by draccus.
+    with pytest.raises(Exception, match="pointcloud_typo"):
+        decode(TrainPipelineConfig, {"dataset": {"repo_id": "local/x"}, "policy": {**flat, "pointcloud_typo": 1}})
+
+
+def test_a_real_config_saved_before_the_group_loads(tmp_path):
+    """A `config.json` written by `lerobot-train` before `depth_cloud` existed (a benchmark checkpoint's, kept as a
+    fixture) loads through `--policy.path`'s reader with its flat keys in the group."""
+    import shutil
+
+    from lerobot.configs import PreTrainedConfig
+
+    fixture = Path(__file__).parent / "fixtures" / "focal_config_before_depth_cloud.json"
+    assert "pointcloud_num_points" in json.loads(fixture.read_text())
+    (tmp_path / "ckpt").mkdir()
+    shutil.copy(fixture, tmp_path / "ckpt" / "config.json")
+    loaded = PreTrainedConfig.from_pretrained(tmp_path / "ckpt")
+    assert isinstance(loaded, FocalConfig)
+    assert loaded.depth_cloud == DepthCloudConfig() and not loaded.depth_cloud.enabled
+    assert loaded.down_dims == (32, 64, 128)

@@ -292,11 +292,12 @@ def _chamfer(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.mark.slow
 def test_focal_pointcloud_from_depth_trains_and_rolls_out_with_the_same_clouds(recorded, tmp_path):
-    """lerobot-train --policy.pointcloud_from_depth on the recorded sim dataset (depth video + the cameras.json
-    the robot wrote, copied to meta/ as docs/robot.md says) gives a focal policy whose inputs include
-    observation.pointcloud; lerobot-rollout --policy.path then builds that cloud from the robot's live uint16
-    depth with the checkpoint's own step. The clouds fed at rollout match the ones the saved step computes
-    from the same frames once LeRobot has stored them as depth video and decoded them (the training path)."""
+    """lerobot-train --policy.depth_cloud.from_depth on the recorded sim dataset (depth video; the cameras.json
+    the robot wrote on connect is found from the dataset's robot type, with nothing copied by hand) gives a focal
+    policy whose inputs include observation.pointcloud; lerobot-rollout --policy.path then builds that cloud
+    from the robot's live uint16 depth with the checkpoint's own step. The clouds fed at rollout match the ones
+    the saved step computes from the same frames once LeRobot has stored them as depth video and decoded them
+    (the training path)."""
     import shutil
 
     from lerobot.processor import PolicyProcessorPipeline
@@ -308,15 +309,17 @@ def test_focal_pointcloud_from_depth_trains_and_rolls_out_with_the_same_clouds(r
     tmp, recorded_root, _ = recorded
     root = tmp_path / "dataset"
     shutil.copytree(recorded_root, root)
-    cameras = tmp / "calibration" / "robots" / "ur10e" / "ur10e_cameras.json"
-    shutil.copy(cameras, root / "meta" / "cameras.json")
+    # Training on the machine that recorded: its calibration folder holds the file the robot wrote on connect.
+    shutil.copytree(tmp / "calibration", tmp_path / "calibration")
+    cameras = tmp_path / "calibration" / "robots" / "ur10e" / "ur10e_cameras.json"
+    assert not (root / "meta" / "cameras.json").exists()
     out = tmp_path / "train"
     model = _train(root, out, tmp_path, "--policy.down_dims=[32,64,128]", "--policy.use_images=false",
-                   f"--policy.pointcloud_from_depth={DEPTH_KEY}", CROP[0],
+                   f"--policy.depth_cloud.from_depth={DEPTH_KEY}", CROP[0],
                    CROP[1], steps=6, log_freq=3)
     config = json.loads((model / "config.json").read_text())
     assert config["input_features"]["observation.pointcloud"] == {"type": "STATE", "shape": [512, 3]}
-    assert config["pointcloud_from_depth"] == DEPTH_KEY
+    assert config["depth_cloud"]["from_depth"] == DEPTH_KEY
     weights = load_file(model / "model.safetensors")
     assert any(".pointcloud." in k for k in weights), "the policy has no point-cloud encoder"
     saved = json.loads((model / "policy_preprocessor.json").read_text())

@@ -18,6 +18,7 @@ from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 from lerobot_focal.config_errors import reports_config_errors, require_positive
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.policy.configuration_focal import check_feature_shapes, pointcloud_normalization_mapping
+from lerobot_focal.policy.depth_cloud_settings import DepthCloudConfig
 from lerobot_focal.policy.diffusion_ema.configuration_diffusion_ema import DiffusionEmaConfig
 
 
@@ -95,9 +96,9 @@ class DP3Config(DiffusionEmaConfig):
         return {}
 
     @property
-    def pointcloud_from_depth(self) -> None:
-        """focal's preprocessor can make the cloud from a depth map; dp3 reads a recorded cloud only."""
-        return None
+    def depth_cloud(self) -> DepthCloudConfig:
+        """Off: focal's preprocessor can make the cloud from a depth map; dp3 reads a recorded cloud only."""
+        return DepthCloudConfig()
 
     def validate_features(self) -> None:
         """Refuse, before the encoder is sized, a dataset or env without the inputs DP3 conditions on."""

@@ -23,7 +23,7 @@ as absolute actions), ``gripper.pos`` (opening fraction), ``<camera>`` RGB (H, W
 Point clouds: depth is recorded under LeRobot's ``{camera}_depth`` naming, and the camera intrinsics and
 extrinsics (which LeRobot's RealSense camera drops) are kept by the robot in :meth:`camera_infos` and meant
 to be stored with the dataset (:func:`.camera_info.save_camera_infos`). The robot makes no point cloud: a
-``focal`` policy trained with ``--policy.pointcloud_from_depth=observation.images.<camera>_depth`` makes it from
+``focal`` policy trained with ``--policy.depth_cloud.from_depth=observation.images.<camera>_depth`` makes it from
 the depth in its own preprocessor, at training and rollout, with the crop and point count its checkpoint holds
 (``lerobot_focal.policy.depth_cloud_settings``), the one copy of those settings.
 """
@@ -165,8 +165,9 @@ class UR10e(Robot):
     def _save_camera_infos(self) -> None:
         """Keep the intrinsics LeRobot's cameras drop, next to the robot's calibration, on every connect.
 
-        Copy the file into the dataset (``<root>/meta/cameras.json``) to unproject its ``{camera}_depth`` frames
-        later; :func:`.camera_info.load_camera_infos` reads it back.
+        A focal policy trained on a dataset this robot recorded finds the file from the dataset's robot type
+        (`lerobot_focal.policy.depth_pointcloud_step.resolve_camera_info_path`) and keeps the camera's entry in its
+        checkpoint; :func:`.camera_info.load_camera_infos` reads it back.
         """
         infos = self.backend.camera_infos()
         if infos:

@@ -25,14 +25,14 @@ from ..kinematics import (
 #: The twin's workspace box for point clouds (base frame, metres; lower corner, upper corner): the table top in
 #: front of the arm and what stands on it, from 3 mm above the table surface (so the table itself is cropped
 #: away, as DP3 crops it) to 0.8 m. A focal trained on the twin's depth takes it as
-#: --policy.pointcloud_crop_min / --policy.pointcloud_crop_max (the policy's checkpoint then holds it).
+#: --policy.depth_cloud.crop_min / --policy.depth_cloud.crop_max (the policy's checkpoint then holds it).
 TABLE_TOP_BOX: tuple[tuple[float, float, float], tuple[float, float, float]] = ((-1.1, -0.7, 0.003), (-0.2, 0.4, 0.8))
 
 
 def crop_flags(box: tuple[tuple[float, ...], tuple[float, ...]] = TABLE_TOP_BOX) -> tuple[str, str]:
     """`lerobot-train` flags that give a focal trained on depth this crop box."""
     lo, hi = (",".join(f"{v:g}" for v in corner) for corner in box)
-    return f"--policy.pointcloud_crop_min=[{lo}]", f"--policy.pointcloud_crop_max=[{hi}]"
+    return f"--policy.depth_cloud.crop_min=[{lo}]", f"--policy.depth_cloud.crop_max=[{hi}]"
 
 
 # Position-servo stiffness per joint (N m / rad); gravity is compensated so these only shape tracking.
