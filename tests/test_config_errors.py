@@ -16,6 +16,7 @@ from lerobot_focal.envs.focal_metaworld import FocalMetaworldEnvConfig
 from lerobot_focal.policy import FocalConfig, FocalConfigError
 from lerobot_focal.policy.depth_cloud_settings import DepthCloudConfig
 from lerobot_focal.policy.diffusion_fco import DiffusionFcoConfig
+from lerobot_focal.policy.method_groups import AnchorConfig, LossConfig
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.robots.ur10e import UR10eConfig
 from lerobot_focal.robots.ur10e.safety import SafetyConfig
@@ -40,21 +41,22 @@ def test_decorator_prefixes_the_label_and_is_no_value_error():
 
 
 FOCAL_BAD = {
-    "freq_weight": dict(freq_weight=-1.0),
-    "time_weight": dict(time_weight=-0.5),
-    "macro_mse_weight": dict(regularizer="time_mse", macro_mse_weight=-1.0),
-    "cfm_alpha": dict(cfm_alpha=-1e-5),
-    "every term of the FCO loss has weight 0": dict(time_weight=0.0, freq_weight=0.0),
+    "loss.freq_weight": dict(loss=LossConfig(freq_weight=-1.0)),
+    "loss.time_weight": dict(loss=LossConfig(time_weight=-0.5)),
+    "loss.macro_mse_weight": dict(loss=LossConfig(regularizer="time_mse", macro_mse_weight=-1.0)),
+    "loss.cfm_alpha": dict(loss=LossConfig(cfm_alpha=-1e-5)),
+    "every term of the FCO loss has weight 0": dict(loss=LossConfig(time_weight=0.0, freq_weight=0.0)),
     "ema_power": dict(ema_power=0.0),
     "ema_max_decay > 0": dict(ema_max_decay=0.0),
-    "freq_cutoff must be in (0, 4)": dict(freq_band="low", freq_loss_window="proximal", freq_cutoff=4),
-    "time_eps": dict(time_eps=1.0),
-    "anchor_sigma": dict(anchor_sigma=-1.6),
-    "anchor_mu": dict(anchor_mu=float("nan")),
-    "fixed_r": dict(anchor_sampler="fixed", fixed_r=1.5),
-    "adjacent_delta": dict(adjacent_delta=0.0),
-    "mixture_ratio": dict(mixture_ratio=-0.1),
-    "cfm_boundary": dict(cfm_boundary=0.0),
+    "loss.freq_cutoff must be in (0, 4)": dict(loss=LossConfig(freq_band="low", freq_window="proximal",
+                                                                freq_cutoff=4)),
+    "anchor.eps": dict(anchor=AnchorConfig(eps=1.0)),
+    "anchor.sigma": dict(anchor=AnchorConfig(sigma=-1.6)),
+    "anchor.mu": dict(anchor=AnchorConfig(mu=float("nan"))),
+    "anchor.fixed_r": dict(anchor=AnchorConfig(kind="fixed", fixed_r=1.5)),
+    "anchor.adjacent_delta": dict(anchor=AnchorConfig(adjacent_delta=0.0)),
+    "anchor.mixture_ratio": dict(anchor=AnchorConfig(mixture_ratio=-0.1)),
+    "loss.cfm_boundary": dict(loss=LossConfig(cfm_boundary=0.0)),
     "kernel_size": dict(kernel_size=4),
     "n_groups": dict(n_groups=5),
     "time_embed_dim": dict(time_embed_dim=7),

@@ -39,6 +39,7 @@ from lerobot_focal.policy.depth_cloud_settings import (
     validate_depth_cloud,
 )
 from lerobot_focal.policy.ema import check_ema_settings
+from lerobot_focal.policy.method_groups import MOVED_METHOD_FIELDS, AnchorConfig, LossConfig
 from lerobot_focal.policy.objective import ObjectiveSpec
 from lerobot_focal.policy.optimizer import FusedAdamWConfig
 from lerobot_focal.policy.saved_config_upgrade import install as read_configs_saved_before_moves
@@ -103,7 +104,11 @@ class FocalConfig(PreTrainedConfig):
     """Configuration of FocalPolicy: windows, observations, network, method switches, EMA and optimiser.
 
     Defaults are the paper's settings (its hyper-parameter table); `configs/focal_cpu*.json` shrink the network
-    for CPUs. Every ablation of the paper is a switch here (`ablation` sets a group of the fields below).
+    for CPUs. Every ablation of the paper is a switch here (`ablation` sets a group of the fields below). Three
+    groups nest, as LeRobot's own policies nest theirs: the sampler (`anchor`), the loss (`loss`) and the
+    deployed depth → cloud settings (`depth_cloud`); a `config.json` saved with their old flat keys loads
+    (`MOVED_FIELDS`). The EMA and optimiser fields stay flat, named as LeRobot's diffusion and `diffusion_ema`
+    name them.
 
     Args:
         n_obs_steps: Observation steps in the condition (t−1, t), concatenated into the FiLM vector.
@@ -147,32 +152,14 @@ class FocalConfig(PreTrainedConfig):
         use_film_scale_modulation: FiLM with scale and bias (False: bias only).
         gradient_checkpointing: Trade compute for memory in the U-Net.
         time_scale: The flow time is fed to the network as t·time_scale (99, as the authors' code).
-        ablation: One of `ABLATIONS` (the paper's ablations); sets the method fields it names. Those fields
-            (the keys of `PAPER_METHOD`: objective, anchor_sampler, anchor_mu, anchor_sigma, fixed_r, the loss
-            windows and weights, freq_band, consistency_target) default to None, "not given", and are resolved to
-            the ablation's value or the paper's; giving one that contradicts the ablation is a `FocalConfigError`.
-        objective: "fco" (FocalPolicy) or "flowpolicy" (FlowPolicy's segment-wise consistency flow matching).
-        anchor_sampler: Where the consistency anchor r is drawn: "logit_normal" (LAS), "adjacent"
-            (FlowPolicy's r = τ + Δ), "fixed" or "mixture" (the authors' public code).
-        time_eps: ε: τ ~ U[ε, 1], and inference starts from time ε.
-        anchor_mu: μ_r of LAS's logit-normal anchor.
-        anchor_sigma: σ_r of LAS's logit-normal anchor.
-        adjacent_delta: Δ of the adjacent sampler (and of FlowPolicy's velocity mask).
-        fixed_r: r of the fixed sampler.
-        mixture_mu_a: μ of the second logit-normal of the public code's mixture sampler.
-        mixture_sigma_a: σ of that logit-normal.
-        mixture_ratio: Probability of taking the smaller of the two draws in the mixture sampler.
-        time_loss_window: Where L_time acts: "proximal" (the executed chunk) or "macro" (all L steps).
-        time_weight: Weight of L_time (0 gives the L_freq-only ablation).
-        regularizer: The macro-trajectory term: "freq" (L_freq), "time_mse" (time-domain MSE) or "none".
-        freq_loss_window: Where L_freq acts: "macro" or "proximal".
-        freq_weight: λ, the weight of L_freq.
-        freq_band: DCT band L_freq sees: "all", "low" or "high".
-        freq_cutoff: First "high" DCT coefficient; None → L/2.
-        macro_mse_weight: Weight of the "time_mse" regulariser.
-        cfm_num_segments: Segments of FlowPolicy's objective.
-        cfm_boundary: Anchors at or past this use the exact interpolant at the segment end (FlowPolicy).
-        cfm_alpha: Weight of FlowPolicy's velocity-consistency term.
+        ablation: One of `ABLATIONS` (the paper's ablations); sets the method switches it names (the keys of
+            `PAPER_METHOD`: the sampler and its μ_r, σ_r, r, the loss and its windows, weights and band, the
+            consistency target). Those default to None, "not given", and are resolved to the ablation's value or
+            the paper's; giving one that contradicts the ablation is a `FocalConfigError`.
+        anchor: How the flow time τ and the anchor r are drawn (`--policy.anchor.kind=logit_normal`, LAS; the
+            fields are documented in `method_groups.AnchorConfig`).
+        loss: The training loss (`--policy.loss.kind=fco`, the Foresight Composite Objective; the fields are
+            documented in `method_groups.LossConfig`).
         consistency_target: θ⁻ of the consistency target: "ema" (the paper) or "online" weights under stop-grad
             (the authors' code, and FlowPolicy's).
         num_inference_steps: Network evaluations per chunk (1, the method; > 1 integrates with Euler steps).
@@ -201,11 +188,12 @@ class FocalConfig(PreTrainedConfig):
     """
 
     # Each field is documented once, in the Args block above.
-    #: Flat keys of configs saved before the depth settings became the `depth_cloud` group (saved_config_upgrade).
+    #: Flat keys of configs saved before the groups existed → (group, field) (see `saved_config_upgrade`).
     MOVED_FIELDS: ClassVar[dict[str, tuple[str, str]]] = {
-        f"pointcloud_{name}": ("depth_cloud", name)
-        for name in ("from_depth", "camera_info", "camera", "crop_min", "crop_max", "num_points", "voxel_size",
-                     "depth_unit", "min_depth")
+        **{f"pointcloud_{name}": ("depth_cloud", name)
+           for name in ("from_depth", "camera_info", "camera", "crop_min", "crop_max", "num_points", "voxel_size",
+                        "depth_unit", "min_depth")},
+        **MOVED_METHOD_FIELDS,
     }
 
     # --- windows -------------------------------------------------------------------------------------------
@@ -244,29 +232,10 @@ class FocalConfig(PreTrainedConfig):
     gradient_checkpointing: bool = False
     time_scale: float = 99.0
 
-    # --- method: sampling, objective, target (None: "not given", resolved by `ablations`) ------------------
+    # --- method: sampling, loss, target (switches None: "not given", resolved by `ablations`) ---------------
     ablation: str | None = None
-    objective: str | None = None
-    anchor_sampler: str | None = None
-    time_eps: float = 0.01
-    anchor_mu: float | None = None
-    anchor_sigma: float | None = None
-    adjacent_delta: float = 0.01
-    fixed_r: float | None = None
-    mixture_mu_a: float = 0.6
-    mixture_sigma_a: float = 1.6
-    mixture_ratio: float = 0.15
-    time_loss_window: str | None = None
-    time_weight: float | None = None
-    regularizer: str | None = None
-    freq_loss_window: str | None = None
-    freq_weight: float = 1e-4
-    freq_band: str | None = None
-    freq_cutoff: int | None = None
-    macro_mse_weight: float = 1.0
-    cfm_num_segments: int = 2
-    cfm_boundary: float = 1.0
-    cfm_alpha: float = 1e-5
+    anchor: AnchorConfig = field(default_factory=AnchorConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
     consistency_target: str | None = None
     num_inference_steps: int = 1
     inference_noise_scale: float = 1.0
@@ -389,15 +358,16 @@ class FocalConfig(PreTrainedConfig):
 
     def _validate_freq_cutoff(self) -> None:
         """The "low"/"high" DCT bands split the L_freq window's coefficients at freq_cutoff: both must be non-empty."""
-        if self.regularizer != "freq" or self.freq_band == "all":
+        loss = self.loss
+        if loss.regularizer != "freq" or loss.freq_band == "all":
             return
-        n = self.horizon if self.freq_loss_window == "macro" else self.chunk_size
-        cutoff = self.freq_cutoff if self.freq_cutoff is not None else max(1, n // 2)
+        n = self.horizon if loss.freq_window == "macro" else self.chunk_size
+        cutoff = loss.freq_cutoff if loss.freq_cutoff is not None else max(1, n // 2)
         if not 0 < cutoff < n:
             raise ValueError(
-                f"freq_cutoff must be in (0, {n}) for freq_band={self.freq_band!r}: the L_freq window "
-                f"({self.freq_loss_window}, {n} steps) has DCT coefficients 0…{n - 1} and the cutoff is the first "
-                f"'high' one; got {cutoff}{' (the default, L/2)' if self.freq_cutoff is None else ''}."
+                f"loss.freq_cutoff must be in (0, {n}) for loss.freq_band={loss.freq_band!r}: the L_freq window "
+                f"({loss.freq_window}, {n} steps) has DCT coefficients 0…{n - 1} and the cutoff is the first "
+                f"'high' one; got {cutoff}{' (the default, L/2)' if loss.freq_cutoff is None else ''}."
             )
 
     def set_dataset_feature_metadata(self, features: dict) -> None:
@@ -417,35 +387,10 @@ class FocalConfig(PreTrainedConfig):
         return 2 ** (len(self.down_dims) - 1)
 
     def objective_spec(self) -> ObjectiveSpec:
-        return ObjectiveSpec(
-            kind=self.objective,
-            chunk_size=self.chunk_size,
-            time_window=self.time_loss_window,
-            time_weight=self.time_weight,
-            regularizer=self.regularizer,
-            freq_window=self.freq_loss_window,
-            freq_weight=self.freq_weight,
-            freq_band=self.freq_band,
-            freq_cutoff=self.freq_cutoff,
-            macro_mse_weight=self.macro_mse_weight,
-            cfm_num_segments=self.cfm_num_segments,
-            cfm_boundary=self.cfm_boundary,
-            cfm_delta=self.adjacent_delta,
-            cfm_alpha=self.cfm_alpha,
-        )
+        return ObjectiveSpec(**self.loss.values(), chunk_size=self.chunk_size, cfm_delta=self.anchor.adjacent_delta)
 
     def time_sampler_spec(self) -> TimeSamplerSpec:
-        return TimeSamplerSpec(
-            kind=self.anchor_sampler,
-            eps=self.time_eps,
-            anchor_mu=self.anchor_mu,
-            anchor_sigma=self.anchor_sigma,
-            adjacent_delta=self.adjacent_delta,
-            fixed_r=self.fixed_r,
-            mixture_mu_a=self.mixture_mu_a,
-            mixture_sigma_a=self.mixture_sigma_a,
-            mixture_ratio=self.mixture_ratio,
-        )
+        return TimeSamplerSpec(**self.anchor.values())
 
     # Which of the (possibly many) input features the policy uses. `make_policy` fills input_features with
     # every non-action dataset key, so the policy must pick its own and ignore the rest.

@@ -320,7 +320,7 @@ class FocalPolicy(PreTrainedPolicy):
             if tuple(noise.shape) != shape:
                 raise ValueError(f"noise must have shape {shape} (B, L, action_dim); got {tuple(noise.shape)}.")
             x = noise.to(device=cond.device, dtype=dtype)
-        times = torch.linspace(self.config.time_eps, 1.0, self.config.num_inference_steps + 1, device=x.device)
+        times = torch.linspace(self.config.anchor.eps, 1.0, self.config.num_inference_steps + 1, device=x.device)
         guided = None
         if rtc is not None:  # None too for the first chunk (nothing to continue)
             guided = self.rtc_processor.sample(x, times, lambda m, i: net.velocity(m, times[i].expand(b), cond), *rtc)

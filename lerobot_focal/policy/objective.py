@@ -61,26 +61,26 @@ class ObjectiveSpec:
 
     def __post_init__(self) -> None:
         for name, value, allowed in (
-            ("objective", self.kind, OBJECTIVES),
-            ("time_loss_window", self.time_window, WINDOWS),
-            ("freq_loss_window", self.freq_window, WINDOWS),
-            ("regularizer", self.regularizer, REGULARIZERS),
-            ("freq_band", self.freq_band, FREQ_BANDS),
+            ("loss.kind", self.kind, OBJECTIVES),
+            ("loss.time_window", self.time_window, WINDOWS),
+            ("loss.freq_window", self.freq_window, WINDOWS),
+            ("loss.regularizer", self.regularizer, REGULARIZERS),
+            ("loss.freq_band", self.freq_band, FREQ_BANDS),
         ):
             if value not in allowed:
                 raise ValueError(f"Unknown {name} {value!r}; choose one of {list(allowed)}.")
         if self.chunk_size < 1:
             raise ValueError(f"chunk_size must be ≥ 1, got {self.chunk_size}.")
         if self.cfm_num_segments < 1:
-            raise ValueError(f"cfm_num_segments must be ≥ 1, got {self.cfm_num_segments}.")
+            raise ValueError(f"loss.cfm_num_segments must be ≥ 1, got {self.cfm_num_segments}.")
         # A negative weight makes the optimiser maximise that error; the total loss goes negative and keeps falling.
-        require_non_negative(time_weight=self.time_weight, freq_weight=self.freq_weight,
-                             macro_mse_weight=self.macro_mse_weight, cfm_alpha=self.cfm_alpha)
-        require_in_range("adjacent_delta", self.cfm_delta, 0.0, 1.0, low_open=True)
-        require_in_range("cfm_boundary", self.cfm_boundary, 0.0, 1.0, low_open=True)
+        require_non_negative(**{"loss.time_weight": self.time_weight, "loss.freq_weight": self.freq_weight,
+                                "loss.macro_mse_weight": self.macro_mse_weight, "loss.cfm_alpha": self.cfm_alpha})
+        require_in_range("anchor.adjacent_delta", self.cfm_delta, 0.0, 1.0, low_open=True)
+        require_in_range("loss.cfm_boundary", self.cfm_boundary, 0.0, 1.0, low_open=True)
         if self.kind == "fco" and self.time_weight == 0 and self._regularizer_weight() == 0:
             raise ValueError(
-                "every term of the FCO loss has weight 0 (time_weight, and the regularizer's weight), so nothing "
+                "every term of the FCO loss has weight 0 (loss.time_weight, and the regularizer's weight), so nothing "
                 "would train: give L_time or the regularizer a weight > 0."
             )
 

@@ -22,13 +22,13 @@ ANCHOR_SAMPLERS = ("logit_normal", "adjacent", "fixed", "mixture")
 
 @dataclass(frozen=True)
 class TimeSamplerSpec:
-    """Everything that decides how (τ, r) are drawn; built from `FocalConfig`."""
+    """Everything that decides how (τ, r) are drawn; built from `FocalConfig.anchor` (the same field names)."""
 
     kind: str = "logit_normal"
     eps: float = 0.01
     # LAS (paper): r = sigmoid(mu + sigma * xi).
-    anchor_mu: float = 4.0
-    anchor_sigma: float = 1.6
+    mu: float = 4.0
+    sigma: float = 1.6
     # w/o LAS (FlowPolicy): r = min(τ + delta, 1).
     adjacent_delta: float = 0.01
     # Fixed-r ablation: r = fixed_r (the paper's ablation uses 1).
@@ -46,15 +46,15 @@ class TimeSamplerSpec:
                 "(logit_normal = LAS, adjacent = FlowPolicy / 'w/o LAS', fixed = 'fixed r', "
                 "mixture = the authors' public code)."
             )
-        require_in_range("time_eps", self.eps, 0.0, 1.0, high_open=True)
-        require_positive(anchor_sigma=self.anchor_sigma, mixture_sigma_a=self.mixture_sigma_a)
-        for name, mu in (("anchor_mu", self.anchor_mu), ("mixture_mu_a", self.mixture_mu_a)):
+        require_in_range("anchor.eps", self.eps, 0.0, 1.0, high_open=True)
+        require_positive(**{"anchor.sigma": self.sigma, "anchor.mixture_sigma_a": self.mixture_sigma_a})
+        for name, mu in (("anchor.mu", self.mu), ("anchor.mixture_mu_a", self.mixture_mu_a)):
             if not math.isfinite(mu):
                 raise ValueError(f"{name} must be a finite number, got {mu}.")
-        require_in_range("fixed_r", self.fixed_r, 0.0, 1.0)
-        require_in_range("adjacent_delta", self.adjacent_delta, 0.0, 1.0, low_open=True,
+        require_in_range("anchor.fixed_r", self.fixed_r, 0.0, 1.0)
+        require_in_range("anchor.adjacent_delta", self.adjacent_delta, 0.0, 1.0, low_open=True,
                          why="r = min(τ + Δ, 1) must lie past τ.")
-        require_in_range("mixture_ratio", self.mixture_ratio, 0.0, 1.0, why="It is a probability.")
+        require_in_range("anchor.mixture_ratio", self.mixture_ratio, 0.0, 1.0, why="It is a probability.")
 
 
 def sample_flow_time(batch_size: int, eps: float, *, device=None, generator=None) -> Tensor:
@@ -70,14 +70,14 @@ def sample_anchor_time(
     shape, device = tau.shape, tau.device
     if spec.kind == "logit_normal":
         xi = torch.randn(shape, device=device, generator=generator)
-        return torch.sigmoid(spec.anchor_mu + spec.anchor_sigma * xi)
+        return torch.sigmoid(spec.mu + spec.sigma * xi)
     if spec.kind == "adjacent":
         return torch.clamp(tau + spec.adjacent_delta, max=1.0)
     if spec.kind == "fixed":
         return torch.full(shape, spec.fixed_r, device=device, dtype=tau.dtype)
     # mixture
     a = torch.sigmoid(spec.mixture_mu_a + spec.mixture_sigma_a * torch.randn(shape, device=device, generator=generator))
-    b = torch.sigmoid(spec.anchor_mu + spec.anchor_sigma * torch.randn(shape, device=device, generator=generator))
+    b = torch.sigmoid(spec.mu + spec.sigma * torch.randn(shape, device=device, generator=generator))
     take_min = torch.rand(shape, device=device, generator=generator) < spec.mixture_ratio
     return torch.where(take_min, torch.minimum(a, b), torch.maximum(a, b))
 

@@ -86,7 +86,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     prof = json.loads((out / "tau_profile.json").read_text())["reach|focal|0"]
     for split in ("train", "heldout"):
         p = prof[split]
-        assert p["taus"][0] == 0.01 and p["taus"][-1] == 0.99  # first: the policy's own inference point time_eps
+        assert p["taus"][0] == 0.01 and p["taus"][-1] == 0.99  # first: the policy's own inference point anchor.eps
         assert 0 < p["frames"] <= 16 and len(p["proximal"]) == len(p["macro"]) == len(p["taus"])
         assert all(x >= 0 for x in p["proximal"] + p["macro"]) and p["reference"]["macro"] > 0
         assert p["proximal"][-1] < p["proximal"][0]  # f(M_0.99) is within (1 − τ)·|v − u| of the data

@@ -80,10 +80,10 @@ def test_every_paper_ablation_is_a_method_with_its_switch():
         assert f"--policy.ablation={name}" in METHODS[name].train_args(PRESETS["cpu"])
     assert "--policy.consistency_target=online" in METHODS["focal_online"].train_args(PRESETS["cpu"])
     macro = METHODS["wo_las_macro"].train_args(PRESETS["cpu"])
-    assert {"--policy.ablation=wo_las", "--policy.time_loss_window=macro",
+    assert {"--policy.ablation=wo_las", "--policy.loss.time_window=macro",
             "--policy.consistency_target=online"} <= set(macro)
     one_segment = METHODS["wo_fco_las_1seg"].train_args(PRESETS["cpu"])
-    assert {"--policy.ablation=wo_fco_las", "--policy.cfm_num_segments=1"} <= set(one_segment)
+    assert {"--policy.ablation=wo_fco_las", "--policy.loss.cfm_num_segments=1"} <= set(one_segment)
     paper = [m.name for m in resolve_methods("all")]
     assert "wo_las_macro" not in paper and "wo_fco_las_1seg" not in paper  # diagnostics, not paper methods
     args = METHODS["diffusion"].train_args(PRESETS["cpu"])

@@ -34,17 +34,18 @@ def dataset(tmp_path_factory) -> Path:
 BAD = {
     "horizon": (["--policy.chunk_size=5", "--policy.n_chunks=2"], r"must be a multiple of 4; got L = 5·2 = 10. Fix:"),
     "ablation": (["--policy.ablation=nope"], "Unknown ablation 'nope'. Choose one of ['anchor_0.4_0.5'"),
-    "sampler": (["--policy.anchor_sampler=nope"], "Unknown anchor sampler 'nope'. Choose one of"),
+    "sampler": (["--policy.anchor.kind=nope"], "Unknown anchor sampler 'nope'. Choose one of"),
     "conflict": (
-        ["--policy.ablation=wo_las", "--policy.anchor_sampler=logit_normal"],
-        "ablation='wo_las' conflicts with the switch(es) also given: anchor_sampler='logit_normal'",
+        ["--policy.ablation=wo_las", "--policy.anchor.kind=logit_normal"],
+        "ablation='wo_las' conflicts with the switch(es) also given: anchor.kind='logit_normal'",
     ),
     # Negative weights trained to exit 0 with a negative loss (the optimiser maximised the error).
-    "freq_weight": (["--policy.freq_weight=-1.0"], "--policy.type=focal: freq_weight must be a number ≥ 0, got -1.0."),
-    "time_weight": (["--policy.time_weight=-1.0"], "time_weight must be a number ≥ 0, got -1.0."),
+    "freq_weight": (["--policy.loss.freq_weight=-1.0"],
+                    "--policy.type=focal: loss.freq_weight must be a number ≥ 0, got -1.0."),
+    "time_weight": (["--policy.loss.time_weight=-1.0"], "loss.time_weight must be a number ≥ 0, got -1.0."),
     "ema_power": (["--policy.ema_power=0"], "ema_power must be a number > 0, got 0"),
-    "freq_cutoff": (["--policy.freq_band=high", "--policy.freq_cutoff=12"],
-                    "freq_cutoff must be in (0, 12) for freq_band='high'"),
+    "freq_cutoff": (["--policy.loss.freq_band=high", "--policy.loss.freq_cutoff=12"],
+                    "loss.freq_cutoff must be in (0, 12) for loss.freq_band='high'"),
     "lr": (["--policy.optimizer_lr=-0.001"], "optimizer_lr must be a number > 0, got -0.001."),
 }
 CASES = [(name, False) for name in BAD] + [("horizon", True), ("conflict", True), ("freq_weight", True)]
@@ -75,6 +76,6 @@ def test_ablation_trains_and_its_saved_config_loads_back(dataset, tmp_path):
     assert proc.returncode == 0, proc.stderr[-4000:]
     model_dir = out / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((model_dir / "config.json").read_text())
-    assert (saved["ablation"], saved["anchor_sampler"], saved["objective"]) == ("wo_las", "adjacent", "fco")
+    assert (saved["ablation"], saved["anchor"]["kind"], saved["loss"]["kind"]) == ("wo_las", "adjacent", "fco")
     loaded = PreTrainedConfig.from_pretrained(model_dir)
-    assert (loaded.ablation, loaded.anchor_sampler, loaded.anchor_mu) == ("wo_las", "adjacent", 4.0)
+    assert (loaded.ablation, loaded.anchor.kind, loaded.anchor.mu) == ("wo_las", "adjacent", 4.0)

@@ -331,7 +331,7 @@ def test_a_config_saved_with_the_flat_depth_keys_still_loads(tmp_path):
 
 def test_a_real_config_saved_before_the_group_loads(tmp_path):
     """A `config.json` written by `lerobot-train` before `depth_cloud` existed (a benchmark checkpoint's, kept as a
-    fixture) loads through `--policy.path`'s reader with its flat keys in the group."""
+    fixture) loads through `--policy.path`'s reader with its flat keys in their groups."""
     import shutil
 
     from lerobot.configs import PreTrainedConfig
@@ -344,3 +344,6 @@ def test_a_real_config_saved_before_the_group_loads(tmp_path):
     assert isinstance(loaded, FocalConfig)
     assert loaded.depth_cloud == DepthCloudConfig() and not loaded.depth_cloud.enabled
     assert loaded.down_dims == (32, 64, 128)
+    # ... and the method's flat switches in theirs (the fixture is the paper's method).
+    assert (loaded.loss.kind, loaded.anchor.kind, loaded.anchor.mu, loaded.loss.freq_weight) == (
+        "fco", "logit_normal", 4.0, 1e-4)

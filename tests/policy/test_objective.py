@@ -7,7 +7,9 @@ import pytest
 import scipy.fft
 import torch
 
+from lerobot_focal.policy.ablations import get_switch
 from lerobot_focal.policy.configuration_focal import ABLATIONS, FocalConfig, FocalConfigError
+from lerobot_focal.policy.method_groups import AnchorConfig
 from lerobot_focal.policy.objective import (
     ObjectiveSpec,
     composite_loss,
@@ -99,18 +101,24 @@ def test_unknown_sampler_and_switch_values_are_rejected_with_the_choices():
 @pytest.mark.parametrize("name", sorted(ABLATIONS))
 def test_each_ablation_changes_exactly_the_fields_it_names(name):
     base, ablated = FocalConfig(), FocalConfig(ablation=name)
-    changed = {
-        f.name
-        for f in dataclasses.fields(FocalConfig)
-        if f.name != "ablation" and getattr(base, f.name) != getattr(ablated, f.name)
-    }
-    expected = {k for k, v in ABLATIONS[name].items() if getattr(base, k) != v}
+
+    def leaves(config):  # every field, a group's as "group.field"
+        for f in dataclasses.fields(config):
+            value = getattr(config, f.name)
+            if dataclasses.is_dataclass(value):
+                yield from ((f"{f.name}.{k}", v) for k, v in dataclasses.asdict(value).items())
+            elif f.name != "ablation":
+                yield f.name, value
+
+    ablated_values = dict(leaves(ablated))
+    changed = {name for name, value in leaves(base) if ablated_values[name] != value}
+    expected = {k for k, v in ABLATIONS[name].items() if get_switch(base, k) != v}
     assert changed == expected and expected
 
 
 def test_ablation_conflicting_with_an_explicit_field_is_an_error():
-    with pytest.raises(FocalConfigError, match="anchor_sampler"):
-        FocalConfig(ablation="wo_las", anchor_sampler="mixture")
+    with pytest.raises(FocalConfigError, match="anchor.kind"):
+        FocalConfig(ablation="wo_las", anchor=AnchorConfig(kind="mixture"))
     with pytest.raises(FocalConfigError, match="Unknown ablation 'nope'"):
         FocalConfig(ablation="nope")
 

@@ -9,6 +9,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot_focal.policy import FocalConfig, FocalPolicy
 from lerobot_focal.policy.configuration_focal import FocalConfigError
 from lerobot_focal.policy.encoders import PointCloudEncoder
+from lerobot_focal.policy.method_groups import AnchorConfig, LossConfig
 from lerobot_focal.policy.modeling_focal import ema_decay
 
 from .helpers import small_config, small_policy
@@ -132,7 +133,7 @@ def test_ema_update_arithmetic():
 
 def test_online_target_does_not_touch_ema_in_forward_and_ema_target_does():
     for target, expect_ema in (("online", False), ("ema", True)):
-        policy = small_policy(consistency_target=target, anchor_sampler="fixed", fixed_r=0.9)
+        policy = small_policy(consistency_target=target, anchor=AnchorConfig(kind="fixed", fixed_r=0.9))
         calls = []
         policy.ema_model.velocity_net.register_forward_hook(lambda *a, calls=calls: calls.append(1))
         policy.forward(_train_batch())
@@ -346,5 +347,5 @@ def test_bad_method_switches():
         FocalConfig(consistency_target="teacher")
     with pytest.raises(FocalConfigError, match="use_ema"):
         FocalConfig(use_ema=False)
-    with pytest.raises(FocalConfigError, match="freq_band"):
-        FocalConfig(freq_band="mid")
+    with pytest.raises(FocalConfigError, match="loss.freq_band"):
+        FocalConfig(loss=LossConfig(freq_band="mid"))

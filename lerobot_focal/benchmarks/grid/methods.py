@@ -193,11 +193,11 @@ METHODS: dict[str, Method] = {
         # Not in the paper: w/o LAS with L_time over all L steps, as FlowPolicy's consistency loss covers them. It
         # tests whether that window is why w/o LAS trails w/o FCO & LAS at the plateau budget (docs/benchmarks.md).
         Method("wo_las_macro", "w/o LAS, L_time on all L steps", "focal",
-               ("--policy.ablation=wo_las", "--policy.time_loss_window=macro", ONLINE)),
+               ("--policy.ablation=wo_las", "--policy.loss.time_window=macro", ONLINE)),
         # Not in the paper: FlowPolicy's objective with one segment instead of two; with wo_las_macro it tells which
         # of the two differences left between w/o LAS and w/o FCO & LAS (segments, λ·L_freq) makes the gap.
         Method("wo_fco_las_1seg", "w/o FCO & LAS, one segment", "focal",
-               ("--policy.ablation=wo_fco_las", "--policy.cfm_num_segments=1", ONLINE)),
+               ("--policy.ablation=wo_fco_las", "--policy.loss.cfm_num_segments=1", ONLINE)),
         Method("diffusion", "DP (DDIM 10)", "diffusion"),
         Method("diffusion_fco", "DP w. FCO (DDIM 10)", "diffusion_fco"),
         # DP as its authors (and DP3's) evaluate it: an EMA copy on DP3's schedule, acting with the EMA weights.

@@ -5,7 +5,7 @@
 
 A consistency flow model acts through one map: from a point M_τ = (1 − τ)·M_0 + τ·M_1 of the straight path
 between noise M_0 and an expert macro-trajectory M_1, it jumps to the data in one step,
-f(M_τ, τ) = M_τ + (1 − τ)·v(M_τ, τ, o). Inference uses it once, at τ = ε (``time_eps``). The consistency loss
+f(M_τ, τ) = M_τ + (1 − τ)·v(M_τ, τ, o). Inference uses it once, at τ = ε (``anchor.eps``). The consistency loss
 supervises it against the data only where the anchor r reaches the data end (r ≥ 1, or FlowPolicy's segment end)
 and has to carry that down to τ = ε, one anchor hop at a time; FCO's λ·L_freq adds a weak direct term at every τ.
 How far the data has come is measurable: the MetaWorld experts are deterministic, so the action chunk given the
@@ -83,11 +83,11 @@ def load_focal(checkpoint: Path):
 
 def profile(policy, pre, root: Path, repo_id: str, frames: int = FRAMES, taus: tuple[float, ...] = TAUS) -> dict:
     """The one-step error profile of a loaded focal policy on a LeRobotDataset on disk (see the module doc). The
-    first flow time is always the policy's own inference point ``time_eps``."""
+    first flow time is always the policy's own inference point ``anchor.eps``."""
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
-    eps = policy.config.time_eps
+    eps = policy.config.anchor.eps
     taus = (eps, *(t for t in taus if t > eps))
     meta = LeRobotDatasetMetadata(repo_id, root=root)
     ds = LeRobotDataset(repo_id, root=root, delta_timestamps=resolve_delta_timestamps(policy.config, meta))
