@@ -116,8 +116,10 @@ def check_dataset_stats(
 class FocalInputShapeStep(ObservationProcessorStep):
     """Refuses an observation whose per-frame shape differs from the one the policy was trained on.
 
-    `shapes` maps each observation key the policy reads to its trained shape (without batch/time axes). A key
-    absent from the observation is left to the policy, which names what it needs.
+    `shapes` maps each observation key the policy reads to its trained shape (without batch/time axes); a −1
+    matches any size (a point cloud's point count: the encoder max-pools over points, so a cloud of another
+    size is a valid input, as DP3 trains on 1024 points and evaluates on 512). A key absent from the
+    observation is left to the policy, which names what it needs.
     """
 
     shapes: dict[str, list[int]] = field(default_factory=dict)
@@ -128,14 +130,17 @@ class FocalInputShapeStep(ObservationProcessorStep):
             if value is None or not hasattr(value, "shape"):
                 continue
             got = tuple(value.shape)
-            if len(got) < len(expected) or got[len(got) - len(expected) :] != tuple(expected):
+            tail = got[len(got) - len(expected) :]
+            if len(got) < len(expected) or any(e not in (-1, g) for e, g in zip(expected, tail, strict=True)):
                 raise ValueError(self._message(key, got, tuple(expected)))
         return observation
 
     @staticmethod
     def _message(key: str, got: tuple[int, ...], expected: tuple[int, ...]) -> str:
+        sizes = ["P" if e == -1 else str(e) for e in expected]  # -1: any point count
+        trained = f"({', '.join(sizes)}{',' if len(sizes) == 1 else ''})"
         text = (
-            f"'{key}' has shape {got}, but this policy was trained on {expected} per frame (with leading batch/time "
+            f"'{key}' has shape {got}, but this policy was trained on {trained} per frame (with leading batch/time "
             "axes)."
         )
         if len(expected) == 2 and expected[-1] in (3, 6) and len(got) >= 2 and got[-1] in (3, 6):

@@ -365,14 +365,18 @@ class FocalPolicy(PreTrainedPolicy):
             x = batch[key]
             feat_shape = tuple(self.config.input_features[key].shape)
             n = len(feat_shape)
-            if tuple(x.shape[-n:]) != feat_shape or x.ndim not in (n + 1, n + 2):
+            # A cloud may hold any number of points (the encoder max-pools over them); its channels must match.
+            free = 1 if key == self.config.used_pointcloud_key else 0  # leading sizes that may differ
+            tail = tuple(x.shape[-n:])
+            if tail[free:] != feat_shape[free:] or x.ndim not in (n + 1, n + 2):
+                names = ", ".join(["P"] * free + [str(d) for d in feat_shape[free:]])
                 raise ValueError(
-                    f"'{key}' has shape {tuple(x.shape)}, expected (B, {', '.join(map(str, feat_shape))}) or "
-                    f"(B, n_obs_steps, {', '.join(map(str, feat_shape))}) as in the policy's input_features."
+                    f"'{key}' has shape {tuple(x.shape)}, expected (B, {names}) or (B, n_obs_steps, {names}) as in "
+                    "the policy's input_features."
                 )
             self._check_finite(key, x)
             if stacked and x.ndim == n + 1:
-                x = x.unsqueeze(1).expand(-1, self.config.n_obs_steps, *feat_shape)
+                x = x.unsqueeze(1).expand(-1, self.config.n_obs_steps, *tail)
             elif stacked and x.shape[1] != self.config.n_obs_steps:
                 raise ValueError(
                     f"'{key}' carries {x.shape[1]} observation steps, the policy uses n_obs_steps="

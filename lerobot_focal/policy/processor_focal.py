@@ -51,7 +51,10 @@ def make_focal_pre_post_processors(
         features={**used, **config.output_features}, norm_map=config.normalization_mapping, stats=stats
     )
     # Before the normaliser, which would fail on a wrong shape with a bare broadcasting error.
-    shape_check = FocalInputShapeStep(shapes={k: list(ft.shape) for k, ft in used.items()})
+    # Any number of points (-1): the cloud encoder max-pools over them.
+    shape_check = FocalInputShapeStep(shapes={
+        k: [-1, ft.shape[-1]] if k == config.used_pointcloud_key else list(ft.shape) for k, ft in used.items()
+    })
     # The cloud is made after batching (so an unbatched frame works too) and before the device move (numpy).
     extra = [depth_step] if depth_step is not None else []
     return make_policy_processor_pipelines(

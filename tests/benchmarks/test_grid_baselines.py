@@ -72,6 +72,38 @@ def test_dp3_gets_focal_pcs_encoder_and_cloud_with_dp3_chunking():
         "inputs": "512-pt cloud + 9-d state", "steps": str(preset.steps)}
 
 
+def test_clouds_can_train_on_more_points_than_they_are_evaluated_on(tmp_path, monkeypatch):
+    """DP3's counts (1024 in the demos, 512 in the evaluation env): the demos are collected at the training count
+    into a folder of their own, shared by every evaluation count; the evaluation envs of a point-cloud run (the
+    periodic ones inside lerobot-train and the final lerobot-eval) make clouds of the evaluation count, and the
+    report's table says so. A low-dimensional run is not given a point count."""
+    from lerobot_focal.benchmarks.grid import demos
+    from lerobot_focal.benchmarks.grid.methods import given
+    from lerobot_focal.benchmarks.grid.run import final_eval_command, train_command
+
+    def specs(*extra):
+        argv = ["--preset", "cpu_fair", "--tasks", "pick-place", "--methods", "focal_pc,focal", "--seeds", "0",
+                "--out", str(tmp_path / "out"), "--work", str(tmp_path / "work"), *extra]
+        return build_specs(parse_args(argv))[0]
+
+    (dp3_pc, dp3_state), (dense_pc, _), (plain_pc, _) = (
+        specs("--train-points", "1024", "--eval-points", "512"), specs("--train-points", "1024",
+                                                                       "--eval-points", "1024"), specs())
+    assert "train_points=1024" in str(dp3_pc.data.train_root) and dp3_pc.data == dense_pc.data != plain_pc.data
+    assert dp3_pc.run_dir != dense_pc.run_dir
+    for cmd in (final_eval_command(dp3_pc, tmp_path / "ckpt"), train_command(dp3_pc)):
+        assert "--env.num_points=512" in cmd
+    assert not any(a.startswith("--env.num_points") for a in final_eval_command(dp3_state, tmp_path / "ckpt"))
+    commands = []
+    monkeypatch.setattr(demos, "run_logged", lambda cmd, *a, **k: commands.append(cmd))
+    with pytest.raises(FileNotFoundError):  # nothing was collected (no info.json); the command is what matters
+        demos._collect(tmp_path / "d", "local/x", "pick-place", 10, 1000, dp3_pc.preset, tmp_path / "log",
+                       "pointcloud")
+    assert commands[0][commands[0].index("--num_points") + 1] == "1024"
+    assert given("focal_pc", json.loads(json.dumps(dp3_pc.preset.to_dict())))["inputs"] == (
+        "1024-pt (evaluated on 512) cloud + 9-d state")
+
+
 def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):
     preset = PRESETS["cpu_fair"].with_overrides(method_lr=(("diffusion_ema", 3e-4),))
     assert preset.lr_for("diffusion_ema") == 3e-4 and preset.lr_for("focal") == preset.lr

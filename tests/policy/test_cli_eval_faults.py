@@ -94,7 +94,7 @@ def test_pointcloud_channel_mismatch_is_named_before_normalising(tmp_path):
     ckpt = _checkpoint(tmp_path / "pretrained_model", cloud_channels=6)
     proc = lerobot_eval(ckpt, tmp_path / "eval")
     assert proc.returncode != 0
-    assert "'observation.pointcloud' has shape (1, 512, 3), but this policy was trained on (512, 6)" in proc.stderr, (
+    assert "'observation.pointcloud' has shape (1, 512, 3), but this policy was trained on (P, 6)" in proc.stderr, (
         proc.stderr[-3000:]
     )
     assert "xyz+rgb (P, 6) point clouds and was given xyz (P, 3)" in proc.stderr

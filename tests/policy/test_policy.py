@@ -349,3 +349,28 @@ def test_bad_method_switches():
         FocalConfig(use_ema=False)
     with pytest.raises(FocalConfigError, match="loss.freq_band"):
         FocalConfig(loss=LossConfig(freq_band="mid"))
+
+
+def test_a_cloud_policy_acts_on_clouds_of_another_size_and_refuses_other_channels():
+    """DP3 trains on 1024 points and evaluates on 512; the max-pooled encoder takes any count. A policy trained on
+    64-point clouds acts on 32- and 128-point ones through its own preprocessor (the same action for a cloud
+    whose extra points repeat its own), and still refuses a cloud with other channels, naming the shape."""
+    from lerobot_focal.policy import make_focal_pre_post_processors
+
+    cfg = small_config()
+    stats = {
+        "observation.state": {"min": -torch.ones(9), "max": torch.ones(9)},
+        "observation.pointcloud": {"min": -torch.ones(64, 3), "max": torch.ones(64, 3)},
+        "action": {"min": -torch.ones(3), "max": torch.ones(3)},
+    }
+    policy = FocalPolicy(cfg, dataset_stats=stats).eval()
+    cfg.inference_noise_scale = 0.0  # deterministic chunks: the same observation gives the same action
+    pre, _ = make_focal_pre_post_processors(cfg, dataset_stats=stats)
+    state, cloud = torch.rand(9), torch.rand(1, 32, 3)  # a batched cloud, as the env's processor step gives it
+    actions = []
+    for points in (cloud, cloud.repeat(1, 4, 1)):  # 32 points, and 128 made of the same 32 (the same max-pool)
+        policy.reset()
+        actions.append(policy.select_action(pre({"observation.state": state, "observation.pointcloud": points})))
+    torch.testing.assert_close(actions[0], actions[1])
+    with pytest.raises(ValueError, match=r"'observation.pointcloud' has shape \(1, 32, 6\).*trained on \(P, 3\)"):
+        pre({"observation.state": state, "observation.pointcloud": torch.rand(1, 32, 6)})

@@ -51,7 +51,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--retries", type=int, default=1, help="extra attempts for a failed run (default 1)")
     p.add_argument("--dry-run", action="store_true", help="list the runs still to do and exit")
     for name in ("steps", "batch_size", "eval_every", "eval_episodes", "demos", "heldout_demos", "episode_length",
-                 "final_episodes"):
+                 "final_episodes", "train_points", "eval_points"):
         p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int, default=None,
                        help=f"override the preset's {name}")
     p.add_argument("--lr", type=float, default=None,
@@ -96,6 +96,7 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
         demos=args.demos, heldout_demos=args.heldout_demos, episode_length=args.episode_length, device=args.device,
         final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
         periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed, schedule=args.schedule,
+        train_points=args.train_points, eval_points=args.eval_points,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
     if preset.steps % preset.eval_every:

@@ -86,6 +86,11 @@ class GridPreset:
     # at inference), as LeRobot's image policies crop.
     image_size: int = 84
     image_crop: int = 76
+    # Points per cloud in the demos a point-cloud method trains on, and in the evaluation env. DP3 trains on 1024
+    # and evaluates on 512 (its max-pool encoder takes any count, as focal's and dp3's here do); 512 and 512 is
+    # what the grids ran before these fields existed.
+    train_points: int = 512
+    eval_points: int = 512
 
     # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
     overridden: tuple[str, ...] = ()
@@ -158,7 +163,7 @@ def capped_seeds(seed_caps: Iterable[Sequence], method: str, seeds: Sequence[int
 
 #: The fields the collected datasets depend on (besides the observation types, which name their own folders).
 DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state", "demo_seed", "demos_per_seed",
-               "image_size")
+               "image_size", "train_points")
 PERIODIC_EVALS = ("fixed", "fresh")
 #: ``schedule`` values and the diffusers schedule each selects (``--policy.scheduler_name``).
 SCHEDULES = {"cosine": "cosine", "constant": "constant_with_warmup"}

@@ -310,7 +310,9 @@ def given(name: str, preset: dict) -> dict[str, str]:
     if is_camera(obs):
         inputs = f"RGB {p.image_size}² (crop {p.image_crop}²) + 9-d state"
     else:
-        inputs = "512-pt cloud + 9-d state" if obs == "pointcloud" else "9-d state"
+        points = (f"{p.train_points}-pt" if p.train_points == p.eval_points
+                  else f"{p.train_points}-pt (evaluated on {p.eval_points})")
+        inputs = f"{points} cloud + 9-d state" if obs == "pointcloud" else "9-d state"
         if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
             inputs += " + 39-d object poses"
     return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs,

@@ -59,6 +59,7 @@ def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
         f"--env.render_videos={str(camera).lower()}",
         f"--env.metrics_path={metrics_path}",
         "--eval.use_async_envs=false",
+        *([f"--env.num_points={p.eval_points}"] if spec.obs_type == "pointcloud" else []),
     ]
 
 
