@@ -72,7 +72,7 @@ def test_dp3_gets_focal_pcs_encoder_and_cloud_with_dp3_chunking():
         "inputs": "512-pt cloud + 9-d state", "steps": str(preset.steps)}
 
 
-def test_clouds_can_train_on_more_points_than_they_are_evaluated_on(tmp_path, monkeypatch):
+def test_cloud_point_counts_and_table_crop_reach_the_demos_and_every_evaluation_env(tmp_path, monkeypatch):
     """DP3's counts (1024 in the demos, 512 in the evaluation env): the demos are collected at the training count
     into a folder of their own, shared by every evaluation count; the evaluation envs of a point-cloud run (the
     periodic ones inside lerobot-train and the final lerobot-eval) make clouds of the evaluation count, and the
@@ -102,6 +102,23 @@ def test_clouds_can_train_on_more_points_than_they_are_evaluated_on(tmp_path, mo
     assert commands[0][commands[0].index("--num_points") + 1] == "1024"
     assert given("focal_pc", json.loads(json.dumps(dp3_pc.preset.to_dict())))["inputs"] == (
         "1024-pt (evaluated on 512) cloud + 9-d state")
+    # The table kept in the clouds (DP3's crop keeps some): its own demos, and every cloud of the run keeps it.
+    table_pc, _ = specs("--table-clearance", "none")
+    assert "table_clearance=None" in str(table_pc.data.train_root) and table_pc.data != plain_pc.data
+    assert "--env.table_clearance=null" in final_eval_command(table_pc, tmp_path / "ckpt")
+    assert "--env.table_clearance=0.005" in final_eval_command(plain_pc, tmp_path / "ckpt")
+    commands.clear()
+    with pytest.raises(FileNotFoundError):
+        demos._collect(tmp_path / "d", "local/x", "pick-place", 10, 1000, table_pc.preset, tmp_path / "log",
+                       "pointcloud")
+    assert commands[0][commands[0].index("--table_clearance") + 1] == "none"
+    from lerobot_focal.datasets.making.collect import parse_args as collect_args
+
+    assert collect_args(["--root", "r", "--table_clearance", "none"]).table_clearance is None
+    assert given("focal_pc", json.loads(json.dumps(table_pc.preset.to_dict())))["inputs"] == (
+        "512-pt cloud (table kept) + 9-d state")
+    with pytest.raises(SystemExit):
+        specs("--table-clearance", "-1")
 
 
 def test_learning_rates_per_method_and_lr_for_every_method(tmp_path):

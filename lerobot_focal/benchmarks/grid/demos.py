@@ -72,6 +72,7 @@ def _collect(root: Path, repo_id: str, task: str, episodes: int, seed: int, pres
         "--root", str(root), "--repo_id", repo_id, "--tasks", task, "--episodes", str(episodes),
         "--obs_types", obs_types(preset, obs_type), "--max_steps", str(preset.episode_length), "--seed", str(seed),
         "--image_size", str(preset.image_size), "--num_points", str(preset.train_points),
+        "--table_clearance", str(preset.table_clearance).lower(),
     ]
     log.parent.mkdir(parents=True, exist_ok=True)
     run_logged(cmd, log, dict(os.environ), f"collecting {task} demos")

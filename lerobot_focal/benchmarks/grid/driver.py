@@ -66,10 +66,29 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--schedule", default=None, choices=sorted(SCHEDULES),
                    help="override the preset's learning-rate schedule after the warm-up: 'cosine' (to zero at the "
                         "last step) or 'constant' (how the plateau budget is measured); ACT's rate is always constant")
+    p.add_argument("--table-clearance", dest="table_clearance", default=None, type=_clearance,
+                   help="point clouds: crop the table top this far above its surface (m), or 'none' to keep the "
+                        "table (default: the preset's, the env's 0.005)")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
     return p.parse_args(argv)
+
+
+#: --table-clearance none: keep the table (a None the overrides below must not drop as "not given").
+KEEP_TABLE = "none"
+
+
+def _clearance(text: str) -> float | str:
+    if text.lower() == KEEP_TABLE:
+        return KEEP_TABLE
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a height ≥ 0 in metres or 'none'; got {text!r}")
+    return value
 
 
 def _bool(text: str) -> bool:
@@ -97,8 +116,12 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
         final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
         periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed, schedule=args.schedule,
         train_points=args.train_points, eval_points=args.eval_points,
+        table_clearance=None if args.table_clearance == KEEP_TABLE else args.table_clearance,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
+    if args.table_clearance == KEEP_TABLE:
+        preset = preset.with_none("table_clearance")
+        overrides["table_clearance"] = None
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()

@@ -16,6 +16,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 
+from lerobot_focal.envs.focal_metaworld import DEFAULT_TABLE_CLEARANCE
+
 #: Reset seeds of the training demos start here. LeRobot's periodic evaluation inside `lerobot-train` resets its
 #: envs with seeds ``--seed`` … ``--seed + n_episodes − 1`` (0 … 21 for the grid's seeds 0-2 and 20 episodes), and
 #: a MetaWorld reset seed fixes the object and goal positions: demos collected from seeds 0, 1, … would put the
@@ -91,6 +93,9 @@ class GridPreset:
     # what the grids ran before these fields existed.
     train_points: int = 512
     eval_points: int = 512
+    # Point clouds: the table top is cropped this far above its surface (m, the env's default); None keeps the
+    # table in the clouds (DP3's crop keeps a band of it, and on sweep-into the raised top with its goal hole).
+    table_clearance: float | None = DEFAULT_TABLE_CLEARANCE
 
     # Fields whose value differs from the named preset's (set by with_overrides): they name the folders below.
     overridden: tuple[str, ...] = ()
@@ -100,6 +105,13 @@ class GridPreset:
         # A given lr is an override even at the preset's value: it replaces every method's own rate (method_lr).
         marked = set(changed) | ({"lr"} if kwargs.get("lr") is not None else set())
         return replace(self, **changed, overridden=tuple(sorted(set(self.overridden) | marked)))
+
+    def with_none(self, name: str) -> GridPreset:
+        """`name` set to None, as an override where the preset's value is not None (`with_overrides` reads None
+        as "not given")."""
+        if getattr(self, name) is None:
+            return self
+        return replace(self, **{name: None}, overridden=tuple(sorted({*self.overridden, name})))
 
     def lr_for(self, method: str, own_lr: float | None = None) -> float:
         """The learning rate `method` trains at: ``--lr`` if given (every method), else the preset's rate for
@@ -163,7 +175,7 @@ def capped_seeds(seed_caps: Iterable[Sequence], method: str, seeds: Sequence[int
 
 #: The fields the collected datasets depend on (besides the observation types, which name their own folders).
 DATA_FIELDS = ("demos", "heldout_demos", "episode_length", "obs_type", "env_state", "demo_seed", "demos_per_seed",
-               "image_size", "train_points")
+               "image_size", "train_points", "table_clearance")
 PERIODIC_EVALS = ("fixed", "fresh")
 #: ``schedule`` values and the diffusers schedule each selects (``--policy.scheduler_name``).
 SCHEDULES = {"cosine": "cosine", "constant": "constant_with_warmup"}

@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .grid_presets import SCHEDULES, GridPreset
+from .grid_presets import DEFAULT_TABLE_CLEARANCE, SCHEDULES, GridPreset
 
 
 @dataclass(frozen=True)
@@ -312,7 +312,9 @@ def given(name: str, preset: dict) -> dict[str, str]:
     else:
         points = (f"{p.train_points}-pt" if p.train_points == p.eval_points
                   else f"{p.train_points}-pt (evaluated on {p.eval_points})")
-        inputs = f"{points} cloud + 9-d state" if obs == "pointcloud" else "9-d state"
+        table = ("" if p.table_clearance == DEFAULT_TABLE_CLEARANCE else " (table kept)" if p.table_clearance is None
+                 else f" (table cropped {p.table_clearance * 1000:g} mm above)")
+        inputs = f"{points} cloud{table} + 9-d state" if obs == "pointcloud" else "9-d state"
         if p.env_state and (obs != "pointcloud" or method.policy_type not in ("focal", "dp3")):
             inputs += " + 39-d object poses"
     return {"lr": f"{lr:g}", "schedule": schedule, "acts": acts, "chunk": chunk, "inputs": inputs,

@@ -59,8 +59,14 @@ def _env_args(spec: RunSpec, metrics_path: Path) -> list[str]:
         f"--env.render_videos={str(camera).lower()}",
         f"--env.metrics_path={metrics_path}",
         "--eval.use_async_envs=false",
-        *([f"--env.num_points={p.eval_points}"] if spec.obs_type == "pointcloud" else []),
+        *(_cloud_args(p) if spec.obs_type == "pointcloud" else []),
     ]
+
+
+def _cloud_args(p: GridPreset) -> list[str]:
+    """The evaluation env's cloud: the preset's evaluation point count and table crop (None: keep the table)."""
+    clearance = "null" if p.table_clearance is None else p.table_clearance
+    return [f"--env.num_points={p.eval_points}", f"--env.table_clearance={clearance}"]
 
 
 def final_eval_command(spec: RunSpec, checkpoint: Path, name: str = "final") -> list[str]:

@@ -38,6 +38,7 @@ import numpy as np
 from lerobot_focal.console import doc_parser
 from lerobot_focal.constants import OBS_POINTCLOUD
 from lerobot_focal.datasets.making import commit_log
+from lerobot_focal.envs.focal_metaworld import DEFAULT_TABLE_CLEARANCE
 
 STATE_FILE = "focal_collect_state.json"
 VALID_OBS = ("state", "pointcloud", "pixels", "env_state")
@@ -57,6 +58,9 @@ class CollectConfig:
     seed: int = 0
     image_size: int = 128
     num_points: int = 512
+    # Point clouds: the table top is cropped this far above its surface (m); None keeps the table (DP3's crop
+    # keeps part of it). The env's default otherwise.
+    table_clearance: float | None = DEFAULT_TABLE_CLEARANCE
     push_to_hub: bool = False
     until: str = "full"  # "full": whole episodes, kept when successful ≥ min_success_steps; "success": stop at it
     min_success_steps: int = 5
@@ -275,7 +279,7 @@ def collect(cfg: CollectConfig) -> dict:
     env_cfg = FocalMetaworldEnvConfig(
         task=",".join(cfg.tasks), obs_type=_env_obs_type(cfg.obs_types), episode_length=cfg.max_steps,
         observation_width=cfg.image_size, observation_height=cfg.image_size, num_points=cfg.num_points,
-        env_state="env_state" in cfg.obs_types,
+        env_state="env_state" in cfg.obs_types, table_clearance=cfg.table_clearance,
     )
     tasks = list(dict.fromkeys(t for group in env_cfg.tasks_by_group.values() for t in group))
     features = dataset_features(cfg)
@@ -349,6 +353,10 @@ def collect(cfg: CollectConfig) -> dict:
     return summary
 
 
+def _clearance(text: str) -> float | None:
+    return None if text.lower() == "none" else float(text)
+
+
 def parse_args(argv: list[str] | None = None) -> CollectConfig:
     parser = doc_parser(__doc__, "lerobot-focal-collect")
     parser.add_argument("--root", required=True, type=Path, help="local dataset directory (created or resumed)")
@@ -361,6 +369,9 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
     parser.add_argument("--seed", type=int, default=0, help="first reset seed of each task")
     parser.add_argument("--image_size", type=int, default=128)
     parser.add_argument("--num_points", type=int, default=512)
+    parser.add_argument("--table_clearance", type=_clearance, default=DEFAULT_TABLE_CLEARANCE,
+                        help="point clouds: crop the table top this far above its surface (m), or 'none' to keep "
+                             f"the table (default {DEFAULT_TABLE_CLEARANCE})")
     parser.add_argument("--until", choices=("full", "success"), default="full",
                         help="full: run every episode to --max_steps and keep it when successful on at least "
                              "--min_success_steps steps (DP3's data); success: stop at the first success")
@@ -377,6 +388,7 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
         root=args.root, tasks=[t for t in args.tasks.split(",") if t.strip()], repo_id=args.repo_id,
         episodes=args.episodes, obs_types=obs_types, max_steps=args.max_steps, max_attempts=args.max_attempts,
         seed=args.seed, image_size=args.image_size, num_points=args.num_points, push_to_hub=args.push_to_hub,
+        table_clearance=args.table_clearance,
         until=args.until, min_success_steps=args.min_success_steps,
     )
 
