@@ -1,6 +1,8 @@
 """LeRobot's plugin contract. Every lerobot-* command imports this plugin, so importing it must only register
 classes: no environment variable set, no global RNG drawn from, no LeRobot class or function replaced — unless
-the user opts in. Policy classes follow the conventions LeRobot's tooling checks."""
+the user opts in. The one library function wrapped is draccus' dataclass decoder, so that a focal config.json
+saved before some fields moved into groups still loads (`policy/saved_config_upgrade.py`); it changes nothing
+for any other class. Policy classes follow the conventions LeRobot's tooling checks."""
 
 from __future__ import annotations
 
@@ -20,7 +22,9 @@ import lerobot.datasets.dataset_reader, lerobot.datasets.lerobot_dataset, lerobo
 import lerobot.policies.factory, lerobot.processor, lerobot.scripts.lerobot_eval, lerobot.scripts.lerobot_train
 import lerobot.policies.diffusion.modeling_diffusion, lerobot.policies.diffusion.configuration_diffusion
 
-MODULES = [m for name, m in sorted(sys.modules.items()) if name.startswith("lerobot.") and m is not None]
+import draccus.parsers.decoding
+MODULES = [m for name, m in sorted(sys.modules.items())
+           if (name.startswith("lerobot.") or name.startswith("draccus.")) and m is not None]
 
 def snapshot():
     ids = {}
@@ -63,7 +67,24 @@ def test_importing_the_plugin_changes_nothing_global():
     assert result["policy_registered"]
     assert result["env_changed"] == []  # e.g. MUJOCO_GL is chosen when a simulator starts, not at import
     assert result["rng_changed"] is False
-    assert result["replaced"] == []
+    assert result["replaced"] == ["draccus.parsers.decoding.decode_dataclass"]  # saved_config_upgrade's wrapper
+
+
+def test_the_config_decoder_wrapper_leaves_other_classes_as_draccus_decodes_them():
+    """The wrapped decoder moves flat keys only for a class that declares MOVED_FIELDS: LeRobot's own configs
+    decode to the same object, and an unknown key is refused by draccus with its own message, as before."""
+    from draccus.parsers import decoding
+    from draccus.utils import DecodingError
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    import lerobot_focal.policy  # noqa: F401  (installs the wrapper)
+
+    assert decoding.decode_dataclass.moves_flat_keys
+    raw = {"n_obs_steps": 3, "horizon": 32, "down_dims": [64, 128], "device": "cpu"}
+    assert decoding.decode_dataclass(DiffusionConfig, raw) == decoding.decode_dataclass.__wrapped__(
+        DiffusionConfig, raw)
+    with pytest.raises(DecodingError, match="pointcloud_num_points"):
+        decoding.decode_dataclass(DiffusionConfig, {**raw, "pointcloud_num_points": 3})
 
 
 @pytest.mark.subprocess
@@ -74,10 +95,12 @@ def test_the_opt_in_fast_reader_is_the_one_visible_change():
     if not compatible()[0]:
         # Another LeRobot (e.g. its main branch, docs/compatibility.md): the reader differs from the verified one,
         # so even the opt-in replaces nothing and training reads through LeRobot's own reader.
-        assert result["replaced"] == [] and result["env_changed"] == [] and result["rng_changed"] is False
+        assert result["replaced"] == ["draccus.parsers.decoding.decode_dataclass"]
+        assert result["env_changed"] == [] and result["rng_changed"] is False
         return
-    assert result["replaced"], "the probe sees a patched LeRobot method: it would catch an unasked one"
-    assert all(k.startswith("lerobot.datasets.dataset_reader.DatasetReader.") for k in result["replaced"])
+    replaced = [k for k in result["replaced"] if k != "draccus.parsers.decoding.decode_dataclass"]
+    assert replaced, "the probe sees a patched LeRobot method: it would catch an unasked one"
+    assert all(k.startswith("lerobot.datasets.dataset_reader.DatasetReader.") for k in replaced)
     assert result["env_changed"] == [] and result["rng_changed"] is False
 
 

@@ -10,8 +10,11 @@ pass through unchanged.
 
 draccus has no hook for this: a decoder registered for a class makes draccus treat it as one command-line value
 (and it refuses one on a choice type such as LeRobot's policy configs), so this wraps draccus' dataclass decoder,
-the single function every one of those paths ends in. The wrapper is installed once, when the focal config
-module is imported; `tests/policy/test_depth_pointcloud.py` loads a real pre-change `config.json` through it.
+the single function every one of those paths ends in. It is the plugin's one change to a library at import
+(`tests/test_plugin_contract.py` checks it is the only one, and that other classes decode as before): it acts
+only on a class that declares ``MOVED_FIELDS`` and otherwise calls draccus' own function with the same
+arguments. Where a draccus release has no such function, nothing is wrapped and an old `config.json` is refused
+by draccus, naming the key. `tests/policy/test_depth_pointcloud.py` loads a real pre-change `config.json`.
 """
 
 from __future__ import annotations
@@ -43,12 +46,14 @@ def _decoder_moving_flat_keys(decode_dataclass: Any) -> Any:
         return decode_dataclass(cls, d, path)
 
     decode.moves_flat_keys = True
+    decode.__wrapped__ = decode_dataclass
     return decode
 
 
 def install() -> None:
     """Wrap draccus' dataclass decoder once (idempotent)."""
-    if getattr(decoding.decode_dataclass, "moves_flat_keys", False):
+    original = getattr(decoding, "decode_dataclass", None)
+    if original is None or getattr(original, "moves_flat_keys", False):
         return
-    decoding.decode_dataclass = _decoder_moving_flat_keys(decoding.decode_dataclass)
+    decoding.decode_dataclass = _decoder_moving_flat_keys(original)
     decoding.get_decoding_fn.cache_clear()  # cached decoders hold the function they were built with
