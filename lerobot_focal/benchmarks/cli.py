@@ -13,6 +13,8 @@
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench camera-step [--clouds DATASET]  (a point-cloud / image training step against a low-dim one:
                                                         bf16 autocast, channels-last, fewer points; loss curves)
+    lerobot-focal-bench act-precision --data DATASET   (the grid's ACT in float32 vs bf16 autocast: step time,
+                                                        loss curves from the same weights)
     lerobot-focal-bench allocator [--inputs pointcloud state]  (glibc malloc settings vs the CPU training step)
     lerobot-focal-bench eval-profile --checkpoint CKPT  (where one lerobot-eval's time goes)
     lerobot-focal-bench cloud-content [--tasks ...]     (what a MetaWorld cloud's points fall on: table, arm, objects)
@@ -48,6 +50,7 @@ _DELEGATED = {
     "train-step": "lerobot_focal.benchmarks.train_step",
     "amp-compile": "lerobot_focal.benchmarks.amp_compile",
     "camera-step": "lerobot_focal.benchmarks.camera_step",
+    "act-precision": "lerobot_focal.benchmarks.act_precision",
     "inference-modes": "lerobot_focal.benchmarks.inference_modes",
 }
 
@@ -86,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("camera-step", add_help=False, help="a point-cloud or image training step against a low-dim one, "
                                                         "and cheaper variants with their loss curves")
+    sub.add_parser("act-precision", add_help=False, help="the grid's ACT in float32 and under bf16 autocast: step "
+                                                          "time and loss curves from the same weights")
     sub.add_parser("allocator", add_help=False, help="glibc malloc settings against focal's CPU training step")
     sub.add_parser("cloud-content", add_help=False, help="share of a MetaWorld cloud's points on the table, the arm "
                                                          "and the task's objects, env crop vs the previous box")

@@ -1,0 +1,163 @@
+"""`lerobot-focal-bench act-precision`: would bf16 autocast make the grid's ACT cheaper without changing it?
+
+    lerobot-focal-bench act-precision --data outputs/bench/data/cpu_fair/disassemble/train-demos1000 \
+        --repo-id local/disassemble_train_demos1000 --out docs/benchmarks
+
+ACT is the grid's costliest method on a CPU (its 50-step chunk runs through the transformer in every step). This
+trains the grid's ACT (LeRobot's `ACTPolicy` with the grid's chunk, width and learning rate, `methods._act_inputs`)
+twice from the same weights, in float32 and under CPU bf16 autocast, on the same batches of a grid dataset and
+the same noise (dropout, the VAE's sample) at every step, and reports the step time of each and the two loss
+curves. A cheaper setting is adopted only where the curves agree as `camera-step`'s did (within a fraction of a
+percent); otherwise the grid keeps ACT in float32, its authors' precision.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_focal.console import doc_parser
+
+#: What ACT reads of a grid dataset (the agent state and, where recorded, the object poses) and its targets.
+OBSERVATIONS = ("observation.state", "observation.environment_state")
+TARGETS = ("action", "action_is_pad")
+#: Largest relative difference of the two losses (mean of the last fifth) at which bf16 counts as the same training;
+#: camera-step's bf16 variants of focal differ by 0.1-0.3 %.
+AGREEMENT = 0.01
+
+
+def _policy_and_batches(root: Path, repo_id: str, preset_name: str, batch: int):
+    from lerobot.configs.types import FeatureType
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
+    from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK
+
+    preset = PRESETS[preset_name]
+    probe = LeRobotDataset(repo_id, root=root)
+    features = dataset_to_policy_features(probe.meta.features)
+    width = preset.act_width or (512, 3200)
+    config = ACTConfig(
+        input_features={k: f for k, f in features.items() if k in OBSERVATIONS},
+        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+        chunk_size=ACT_CHUNK, n_action_steps=ACT_CHUNK, dim_model=width[0], dim_feedforward=width[1], device="cpu",
+        optimizer_lr=preset.lr_for("act"),
+    )
+    dataset = LeRobotDataset(repo_id, root=root,
+                             delta_timestamps={"action": [i / probe.meta.fps for i in range(ACT_CHUNK)]})
+    pre, _ = make_pre_post_processors(config, dataset_stats=dataset.meta.stats)
+    # The demos are small (2000 frames): read once, then batches from memory, so the steps time the model only.
+    frames = [dataset[i] for i in range(len(dataset))]
+    data = {k: torch.stack([f[k] for f in frames]) for k in (*config.input_features, *TARGETS)}
+    g = torch.Generator().manual_seed(0)
+
+    def batches():
+        while True:
+            for idx in torch.randperm(len(frames), generator=g).split(batch):
+                if len(idx) == batch:
+                    yield pre({k: v[idx] for k, v in data.items()})
+
+    torch.manual_seed(0)
+    return ACTPolicy(config), config, batches()
+
+
+def measure(root: Path, repo_id: str, preset_name: str, steps: int, batch: int) -> dict:
+    torch.set_num_threads(1)
+    policy, config, batches = _policy_and_batches(root, repo_id, preset_name, batch)
+    runs = {"float32": (policy, False), "bf16 autocast": (copy.deepcopy(policy), True)}
+    preset = config.get_optimizer_preset()  # what lerobot-train builds for ACT: AdamW, clip at grad_clip_norm
+    optimizers = {name: preset.build(p.parameters()) for name, (p, _) in runs.items()}
+    losses: dict[str, list[float]] = {name: [] for name in runs}
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for step in range(steps):
+        batch_ = next(batches)
+        for name, (p, amp) in runs.items():
+            torch.manual_seed(step)  # the same dropout masks and VAE samples for both
+            start = time.perf_counter()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=amp):
+                loss, _ = p.forward(batch_)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(p.parameters(), preset.grad_clip_norm)
+            optimizers[name].step()
+            optimizers[name].zero_grad()
+            times[name].append(time.perf_counter() - start)
+            losses[name].append(float(loss.detach()))
+        if step % 50 == 0:
+            print(f"[act-precision] step {step}: " + ", ".join(f"{n} {v[-1]:.3f}" for n, v in losses.items()),
+                  flush=True)
+    tail = max(1, steps // 5)
+    rows = {name: {"ms_per_step": 1000 * statistics.median(times[name][2:]),
+                   "loss_last_fifth": float(np.mean(losses[name][-tail:]))} for name in runs}
+    base = rows["float32"]
+    for row in rows.values():
+        row["speedup"] = base["ms_per_step"] / row["ms_per_step"]
+        row["loss_difference"] = row["loss_last_fifth"] / base["loss_last_fifth"] - 1
+    return {"data": str(root), "preset": preset_name, "steps": steps, "batch": batch, "chunk": config.chunk_size,
+            "width": [config.dim_model, config.dim_feedforward], "lr": config.optimizer_lr, "threads": 1,
+            "rows": rows, "loss_curves": losses}
+
+
+def render(result: dict) -> str:
+    md = [f"# ACT in float32 and under bf16 autocast on a CPU (the grid's ACT, batch {result['batch']}, one thread)",
+          "", f"`lerobot-focal-bench act-precision --data {result['data']}`: LeRobot's ACT with the {result['preset']} "
+          f"grid's settings (chunk {result['chunk']}, width {result['width'][0]}/{result['width'][1]}, lr "
+          f"{result['lr']:g}), trained {result['steps']} steps twice from the same weights on the same batches and "
+          "noise. Step time: median over the steps; loss: mean of the last fifth ([curves](act_precision.png)).", "",
+          "| precision | ms / step | speed-up | loss | loss vs float32 |", "|---|---|---|---|---|"]
+    md += [f"| {name} | {r['ms_per_step']:.0f} | {r['speedup']:.2f}× | {r['loss_last_fifth']:.4f} | "
+           f"{r['loss_difference'] * 100:+.1f} % |" for name, r in result["rows"].items()]
+    diff = result["rows"]["bf16 autocast"]["loss_difference"]
+    md += ["", f"The curves agree (within {AGREEMENT:.0%}): bf16 autocast would train the same ACT, cheaper."
+           if abs(diff) <= AGREEMENT else
+           f"The curves differ by {diff:+.1%} (more than {AGREEMENT:.0%}): bf16 autocast trains another ACT, so the "
+           "grid keeps ACT in float32, its authors' precision, and pays its step time."]
+    return "\n".join(md) + "\n"
+
+
+def _plot(path: Path, curves: dict[str, list[float]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lerobot_focal.figures import save_png
+
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for (name, values), style in zip(curves.items(), ("-", "--"), strict=False):
+        window = max(1, len(values) // 20)
+        smooth = np.convolve(values, np.ones(window) / window, mode="valid")
+        ax.plot(np.arange(len(smooth)) + window, smooth, ls=style, label=name)
+    ax.set_yscale("log")
+    ax.set_xlabel("training step")
+    ax.set_ylabel("ACT loss (running mean)")
+    ax.legend()
+    save_png(fig, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = doc_parser(__doc__, "lerobot-focal-bench act-precision")
+    parser.add_argument("--data", type=Path, required=True, help="a grid dataset (state + object poses) root")
+    parser.add_argument("--repo-id", default="local/demos", help="its repo id (any name for a local dataset)")
+    parser.add_argument("--preset", default="cpu_fair", help="the grid preset whose ACT settings to use")
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
+    args: argparse.Namespace = parser.parse_args(argv)
+    result = measure(args.data, args.repo_id, args.preset, args.steps, args.batch)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "act_precision.json").write_text(json.dumps(result, indent=1))
+    _plot(args.out / "act_precision.png", result["loss_curves"])
+    (args.out / "act_precision.md").write_text(render(result))
+    print(render(result))
+    return 0
