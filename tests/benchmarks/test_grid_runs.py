@@ -215,6 +215,10 @@ def test_run_interrupted_after_an_evaluation_resumes_from_its_checkpoint(work, t
     assert record.status == "ok" and [c["step"] for c in record.curve] == [2, 4, 6, 8, 10]
     (resumed_at,) = record.resumed_from_steps
     assert f"reach|focal|0 at step {resumed_at}\n" in listed  # where --dry-run said it would continue
+    # ... and how far the run had got: the success of every evaluation it completed
+    line = next(x for x in listed.splitlines() if x.strip().startswith("reach|focal|0 (continues"))
+    assert f"from step {resumed_at} of 10; success at each evaluation so far: 2: " in line
+    assert line.count(" %") >= resumed_at // 2
     assert resumed_at in (2, 4, 6, 8) and record.lost_s >= 0 and len(record.spans) == 2
     seeded = _seeded_episodes(run_dir)
     assert seeded[:2] == first_evaluation and len(seeded) == 10  # kept, then the rest, nothing twice

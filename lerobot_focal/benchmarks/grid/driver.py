@@ -23,6 +23,7 @@ from ...console import doc_parser
 from .grid_presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
 from .methods import resolve_method_phases
 from .results import ResultsFile, RunRecord
+from .resume import successes_so_far
 from .run import resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges
 from .specs import RunSpec, make_specs
@@ -198,6 +199,15 @@ def _stop_on_signals() -> None:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def _progress(spec: RunSpec, step: int) -> str:
+    """Where an unfinished run stands: its resume step and the success of each evaluation so far (a run another
+    grid process is training shows its progress too)."""
+    curve = successes_so_far(spec.run_dir, spec.preset.eval_episodes)
+    every = spec.preset.eval_every
+    shown = ", ".join(f"{(i + 1) * every}: {100 * s:.0f} %" for i, s in enumerate(curve))
+    return f" (continues from step {step} of {spec.preset.steps}; success at each evaluation so far: {shown})"
+
+
 def main(argv: list[str] | None = None) -> int:
     # force: an import on the way (LeRobot's) has already set up the root logger at WARNING, which hid these lines
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", force=True)
@@ -222,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
               + ", ".join(f"{k} at step {v}" for k, v in resumable.items()))
     if args.dry_run:
         for s in todo:
-            print("  ", s.key + (f" (continues from step {resumable[s.key]})" if s.key in resumable else ""))
+            print("  ", s.key + (_progress(s, resumable[s.key]) if s.key in resumable else ""))
         return 0
     args.out.mkdir(parents=True, exist_ok=True)  # not before: a dry run leaves no empty results folder behind
     grid_file.write_text(json.dumps(recorded, indent=2, default=str))
