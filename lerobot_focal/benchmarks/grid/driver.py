@@ -20,10 +20,12 @@ import time
 from pathlib import Path
 
 from ...console import doc_parser
+from ...datasets.making.collect import table_clearance_arg
 from .grid_presets import DEMO_SEED, PERIODIC_EVALS, PRESETS, SCHEDULES
 from .methods import resolve_method_phases
+from .metrics import eval_curve
 from .results import ResultsFile, RunRecord
-from .resume import successes_so_far
+from .resume import seeded_episodes
 from .run import resumable_step
 from .seeds import RESCORE_BLOCKS, check_seed_ranges
 from .specs import RunSpec, make_specs
@@ -67,7 +69,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--schedule", default=None, choices=sorted(SCHEDULES),
                    help="override the preset's learning-rate schedule after the warm-up: 'cosine' (to zero at the "
                         "last step) or 'constant' (how the plateau budget is measured); ACT's rate is always constant")
-    p.add_argument("--table-clearance", dest="table_clearance", default=None, type=_clearance,
+    p.add_argument("--table-clearance", dest="table_clearance", default=NOT_GIVEN, type=table_clearance_arg,
                    help="point clouds: crop the table top this far above its surface (m), or 'none' to keep the "
                         "table (default: the preset's, the env's 0.005)")
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
@@ -76,20 +78,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-#: --table-clearance none: keep the table (a None the overrides below must not drop as "not given").
-KEEP_TABLE = "none"
-
-
-def _clearance(text: str) -> float | str:
-    if text.lower() == KEEP_TABLE:
-        return KEEP_TABLE
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a height ≥ 0 in metres or 'none'; got {text!r}")
-    return value
+#: --table-clearance not given (None is a value of it: keep the table).
+NOT_GIVEN = object()
 
 
 def _bool(text: str) -> bool:
@@ -117,12 +107,12 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
         final_episodes=args.final_episodes, down_dims=args.down_dims, lr=args.lr, demo_seed=args.demo_seed,
         periodic_eval=args.periodic_eval, demos_per_seed=args.demos_per_seed, schedule=args.schedule,
         train_points=args.train_points, eval_points=args.eval_points,
-        table_clearance=None if args.table_clearance == KEEP_TABLE else args.table_clearance,
     ).items() if v is not None}
     preset = PRESETS[args.preset].with_overrides(**overrides)
-    if args.table_clearance == KEEP_TABLE:
-        preset = preset.with_none("table_clearance")
-        overrides["table_clearance"] = None
+    if args.table_clearance is not NOT_GIVEN:  # None keeps the table, which with_overrides would read as unset
+        clearance = overrides["table_clearance"] = args.table_clearance
+        preset = (preset.with_none("table_clearance") if clearance is None
+                  else preset.with_overrides(table_clearance=clearance))
     if preset.steps % preset.eval_every:
         raise SystemExit(f"--steps ({preset.steps}) must be a multiple of --eval-every ({preset.eval_every})")
     tasks = list(dict.fromkeys(t.removesuffix("-v3") for g in resolve_metaworld_tasks(args.tasks).values()
@@ -202,9 +192,9 @@ def _stop_on_signals() -> None:
 def _progress(spec: RunSpec, step: int) -> str:
     """Where an unfinished run stands: its resume step and the success of each evaluation so far (a run another
     grid process is training shows its progress too)."""
-    curve = successes_so_far(spec.run_dir, spec.preset.eval_episodes)
-    every = spec.preset.eval_every
-    shown = ", ".join(f"{(i + 1) * every}: {100 * s:.0f} %" for i, s in enumerate(curve))
+    seeded, n = seeded_episodes(spec.run_dir), spec.preset.eval_episodes
+    curve = eval_curve(seeded[: len(seeded) // n * n], n, spec.preset.eval_every)  # an evaluation under way: left out
+    shown = ", ".join(f"{e['step']}: {100 * e['success']:.0f} %" for e in curve)
     return f" (continues from step {step} of {spec.preset.steps}; success at each evaluation so far: {shown})"
 
 

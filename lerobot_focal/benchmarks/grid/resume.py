@@ -85,14 +85,6 @@ def seeded_episodes(run_dir: Path) -> list[dict]:
     return [rec for _, rec in _episode_lines(run_dir / EPISODES_FILE) if rec.get("seed") is not None]
 
 
-def successes_so_far(run_dir: Path, episodes_per_eval: int) -> list[float]:
-    """Success of each periodic evaluation a run has completed so far (an evaluation under way is left out)."""
-    seeded = seeded_episodes(run_dir)
-    whole = len(seeded) // episodes_per_eval * episodes_per_eval
-    return [sum(bool(e["success"]) for e in seeded[i : i + episodes_per_eval]) / episodes_per_eval
-            for i in range(0, whole, episodes_per_eval)]
-
-
 @dataclass(frozen=True)
 class ResumePoint:
     step: int  # the checkpoint's training step; the evaluations up to and including it are kept

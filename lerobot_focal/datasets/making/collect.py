@@ -25,6 +25,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import signal
@@ -353,8 +354,17 @@ def collect(cfg: CollectConfig) -> dict:
     return summary
 
 
-def _clearance(text: str) -> float | None:
-    return None if text.lower() == "none" else float(text)
+def table_clearance_arg(text: str) -> float | None:
+    """A command line's table clearance: a height ≥ 0 in metres, or 'none' (None: keep the table)."""
+    if text.lower() == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a height ≥ 0 in metres or 'none'; got {text!r}")
+    return value
 
 
 def parse_args(argv: list[str] | None = None) -> CollectConfig:
@@ -369,7 +379,7 @@ def parse_args(argv: list[str] | None = None) -> CollectConfig:
     parser.add_argument("--seed", type=int, default=0, help="first reset seed of each task")
     parser.add_argument("--image_size", type=int, default=128)
     parser.add_argument("--num_points", type=int, default=512)
-    parser.add_argument("--table_clearance", type=_clearance, default=DEFAULT_TABLE_CLEARANCE,
+    parser.add_argument("--table_clearance", type=table_clearance_arg, default=DEFAULT_TABLE_CLEARANCE,
                         help="point clouds: crop the table top this far above its surface (m), or 'none' to keep "
                              f"the table (default {DEFAULT_TABLE_CLEARANCE})")
     parser.add_argument("--until", choices=("full", "success"), default="full",
