@@ -13,11 +13,14 @@ from lerobot_focal.benchmarks.grid.run import MALLOC_ENV, child_env
 
 def test_runs_get_the_heap_only_malloc_settings_unless_the_user_set_their_own(monkeypatch):
     monkeypatch.delenv("MALLOC_MMAP_MAX_", raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "12345")
     env = child_env(PRESETS["cpu_plateau"])
     assert env["MALLOC_MMAP_MAX_"] == MALLOC_ENV["MALLOC_MMAP_MAX_"] == "0"
     assert env["MALLOC_TRIM_THRESHOLD_"] == "12345"  # the user's value wins
-    assert env["OMP_NUM_THREADS"] == "1" and env["HF_HUB_OFFLINE"] == "1"
+    assert env["OMP_NUM_THREADS"] == "1" and env["HF_HUB_OFFLINE"] == "1"  # the preset's threads
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")  # a run alone on two cores
+    assert child_env(PRESETS["cpu_plateau"])["OMP_NUM_THREADS"] == "2"
 
 
 @pytest.mark.subprocess

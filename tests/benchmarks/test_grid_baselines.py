@@ -220,9 +220,14 @@ def test_report_says_what_each_method_was_given(tmp_path):
     for m in methods:
         record = _record("disassemble", m, 0, 0.5, 0.4, "fresh")
         record["nfe"] = 10.0 if m == "diffusion_ema" else 1.0
+        if m != "wo_fco_las":  # a record written before runs kept their thread count
+            record["torch_threads"] = 2 if m == "act" else 1  # ACT alone on two cores
         ResultsFile(tmp_path / "results.jsonl").append(record)
     report = write_report(tmp_path).read_text()
     assert "## What each method was given" in report and "batch 64" in report and "20000 steps" in report
+    cost = report.split("## Cost per run")[1].split("\n## ")[0]
+    assert "| ACT | 1 | 2.0 | 0.060 | 10.0 | 2 |" in cost and "| FocalPolicy | 1 | 2.0 | 0.060 | 10.0 | 1 |" in cost
+    assert "| w/o FCO & LAS | 1 | 2.0 | 0.060 | 10.0 | – |" in cost
     for row in (
         "| FocalPolicy | 0.001 | cosine, 100 warm-up | 20000 | EMA weights; consistency target EMA | 12 / 4 | "
         "9-d state + 39-d object poses | 1 |",
@@ -259,6 +264,31 @@ def test_a_method_trains_to_its_own_budget_with_as_many_evaluations(tmp_path):
     later = json.loads(json.dumps(grid, default=str))
     later["preset"]["method_steps"] = [["act", 12000]]
     assert merged_grid(recorded, later, tmp_path)["methods"] == ["focal", "act"]
+
+
+def test_a_methods_budget_may_change_until_its_first_run_lands(tmp_path):
+    """A results folder whose grid.json gave ACT no budget of its own accepts an invocation that gives it one while
+    the folder holds focal's runs only; once an ACT run has landed, the same change is refused (it would put runs
+    of two budgets under one key), and so is a change of focal's own rate."""
+    from tests.benchmarks.test_grid_estimators import _record
+
+    argv = ["--preset", "cpu_fair", "--tasks", "disassemble", "--methods", "focal,act", "--seeds", "0",
+            "--out", str(tmp_path), "--work", str(tmp_path / "w")]
+    _, grid = build_specs(parse_args(argv))
+    later = json.loads(json.dumps(grid, default=str))
+    assert later["preset"]["method_steps"] == [["act", 10000]]  # cpu_fair's own
+    earlier = json.loads(json.dumps(grid, default=str))
+    earlier["preset"]["method_steps"] = []
+    results = ResultsFile(tmp_path / "results.jsonl")
+    results.append(_record("disassemble", "focal", 0, 0.5, 0.4, "fresh"))
+    assert merged_grid(earlier, later, tmp_path)["methods"] == ["focal", "act"]
+    other_focal_rate = json.loads(json.dumps(later))
+    other_focal_rate["preset"]["method_lr"].append(["focal", 3e-4])
+    with pytest.raises(SystemExit, match="preset method_lr"):
+        merged_grid(later, other_focal_rate, tmp_path)
+    results.append(_record("disassemble", "act", 0, 0.5, 0.4, "fresh"))
+    with pytest.raises(SystemExit, match="preset method_steps"):
+        merged_grid(earlier, later, tmp_path)
 
 
 def test_dp3_is_compared_with_focal_on_the_same_point_clouds(tmp_path):

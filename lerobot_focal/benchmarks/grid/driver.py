@@ -134,6 +134,20 @@ _DESCRIPTIVE_PRESET_FIELDS = ("notes",)
 #: Preset fields an override makes irrelevant: with --lr every method trains at it, whatever method_lr says (so
 #: a sweep resumes after a chosen rate is recorded in the preset).
 _SUPERSEDED = {"lr": ("method_lr",)}
+#: Preset fields of (method, value) pairs: an invocation may change a method's entry while the folder holds no
+#: finished run of that method (a budget or rate chosen after the grid began, before that method's first run).
+_PER_METHOD_FIELDS = ("method_lr", "method_steps")
+
+
+def _methods_run(out: Path) -> set[str]:
+    """The methods with a finished run in ``out``."""
+    return {record.method for record in ResultsFile(out / "results.jsonl").ok().values()}
+
+
+def _per_method_change_is_free(old: list, new: list, run: set[str]) -> bool:
+    """Whether two (method, value) lists differ only for methods without a finished run."""
+    old_of, new_of = dict(map(tuple, old)), dict(map(tuple, new))
+    return all(old_of.get(m) == new_of.get(m) for m in (old_of.keys() | new_of.keys()) & run)
 
 
 def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
@@ -142,6 +156,7 @@ def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
     Runs are keyed by task, method and seed only, so a results directory grows one invocation at a time (another
     method, another seed) and its report covers them all. Invocations with another preset or other overrides
     would mix runs that measure different things under one key, so they are refused; nothing is written then.
+    A method's own rate or budget (``_PER_METHOD_FIELDS``) may change while the folder holds none of its runs.
     """
     if previous is None:
         return grid
@@ -158,7 +173,9 @@ def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
     differing += [(f"preset {k}", old_preset[k], new_preset[k])
                   for k in sorted(old_preset.keys() & new_preset.keys())
                   if k not in {*_DESCRIPTIVE_PRESET_FIELDS, "overridden", *overridden, *superseded}
-                  and old_preset[k] != new_preset[k]]
+                  and old_preset[k] != new_preset[k]
+                  and not (k in _PER_METHOD_FIELDS
+                           and _per_method_change_is_free(old_preset[k], new_preset[k], _methods_run(out)))]
     if differing:
         shown = "; ".join(f"{name}: {old!r} there, {new!r} now" for name, old, new in differing)
         raise SystemExit(

@@ -254,6 +254,12 @@ PRESETS: dict[str, GridPreset] = {
     # constant rate for 24000 steps on disassemble and push-wall): focal's 3-evaluation mean is within 10 points of
     # its best by step 6000-10000, diffusion_ema's by 13000-15000; with the cosine schedule over 20000 steps the
     # rate at step 15000 is still 15 % of its peak, so the slowest method plateaus before the schedule anneals.
+    # ACT trains 10000 steps (method_steps, 16 evaluations every 625), a budget this CPU sets, not its curve: at
+    # ACT's width 128/800 a batch-64 step costs ~14x focal's here (0.6 s beside a second run, `act-precision`:
+    # 0.89 s alone), so 20000 steps are ~3.3 h per run, longer than a working session can hold a run (unfinished
+    # runs do not survive one). ACT trains at a constant rate, so its 10000 steps are the first half of a
+    # 20000-step curve, not a shorter schedule; a partial 20000-step run (lost with its session) had flattened
+    # on disassemble from step 6250 (75-85 % per evaluation) and still rose on push-wall at 12500 (50 -> 70 %).
     "cpu_fair": (_CPU_FAIR := replace(
         _CPU_PLATEAU,
         name="cpu_fair",
@@ -262,17 +268,20 @@ PRESETS: dict[str, GridPreset] = {
         periodic_eval="fresh",
         demos_per_seed=True,
         method_lr=(("diffusion_ema", 1e-3), ("act", 1e-4)),  # the lr sweep's choices
+        method_steps=(("act", 10_000),),  # what this CPU affords (above)
         notes=(
             "CPU preset with the paper's estimator: as cpu_plateau (10 full-length demos, batch 64, 16 evaluations "
             "of 20 episodes, top-5, the final checkpoint on 50 fresh episodes, U-Net 32/64/128, low-dimensional "
-            "observations) but trained to the plateau of every method's curve, 20000 steps (evaluations every "
+            "observations) but trained to the plateau of focal's and diffusion's curves, 20000 steps (evaluations every "
             "1250; the plateau probe, docs/benchmarks.md), and every periodic evaluation draws new placements, other "
             "for every training seed, as DP3's runner does (top-5 picks the luckiest of 16 independent draws of "
             "20 episodes), and every training seed learns from its own 10 demos (the ± over seeds includes the "
             "draw of the demos). Baselines at their own best: diffusion with its EMA (diffusion_ema) at the rate "
             "a sweep chose (1e-3 of 1e-4/3e-4/1e-3), LeRobot's ACT with its defaults (chunk 50, width 128/800) but "
             "at the rate the same sweep chose (1e-4 of its authors' 1e-5 and 1e-4; at 1e-5 it scored 4 % fresh on "
-            "disassemble after 8000 steps). Both chosen rates are the highest swept."
+            "disassemble after 8000 steps). Both chosen rates are the highest swept. ACT trains 10000 steps (16 "
+            "evaluations every 625) at its constant rate: at 0.6 s per step on this CPU, 20000 would not fit a "
+            "working session; its curve on push-wall may still rise after 10000."
         ),
     )),
     # From a camera: one RGB camera + the 9-d state, no object poses, for focal, diffusion with its EMA and ACT

@@ -410,13 +410,17 @@ def write_report(out_dir: Path) -> Path:
                 "TS score = |TS_expert − TS_policy|, TS = mean ‖a_{t+1} − 2a_t + a_{t−1}‖ (CoLA's exact TS formula "
                 "is not available to us; this is our stand-in of the same kind).")
     md += _given_table(methods, label, preset, agg)
-    md += ["## Cost per run", "", "| Method | NFE per chunk | latency per chunk (ms, batch 1) | update (s/step) | "
-           "wall time per run (min) |", "|---|---|---|---|---|"]
+    md += ["## Cost per run", "", "Torch threads per run: the preset's, or the OMP_NUM_THREADS the grid was started "
+           "with (a run alone on the machine may use every core); – where the record predates the field.", "",
+           "| Method | NFE per chunk | latency per chunk (ms, batch 1) | update (s/step) | "
+           "wall time per run (min) | torch threads |", "|---|---|---|---|---|---|"]
     for m in methods:
         vals = {k: mean_std([agg[m][t][k][0] for t in agg[m]]) for k in ("nfe", "latency_ms", "update_s_per_step",
                                                                          "wall_s")}
+        threads = sorted({r.torch_threads for r in records if r.method == m and r.torch_threads is not None})
         md.append(f"| {label[m]} | {vals['nfe'][0]:.0f} | {vals['latency_ms'][0]:.1f} | "
-                  f"{vals['update_s_per_step'][0]:.3f} | {vals['wall_s'][0] / 60:.1f} |")
+                  f"{vals['update_s_per_step'][0]:.3f} | {vals['wall_s'][0] / 60:.1f} | "
+                  f"{', '.join(map(str, threads)) or '–'} |")
     md += [""] + _paired_table(records, tasks, methods, label, [("success_top_k", f"top-{preset['top_k']}"),
                                                                ("success_fresh", "final, fresh episodes")])
     md += ["## Goals, measured side by side in this grid", ""] + _goals(records, tasks, methods, label) + [""]

@@ -60,6 +60,7 @@ class RunRecord:
     heldout_episodes: int | None = None
     # Cost and provenance
     update_s_per_step: float | None = None
+    torch_threads: int | None = None  # the run's OMP_NUM_THREADS (None: the library's default)
     wall_s: float | None = None  # training and periodic evaluations, over every resumed segment
     run_dir: str | None = None
     resumed_from_steps: list[int] | None = None  # a run resumed from checkpoints: the steps, the work lost
