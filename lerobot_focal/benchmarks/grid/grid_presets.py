@@ -254,12 +254,14 @@ PRESETS: dict[str, GridPreset] = {
     # constant rate for 24000 steps on disassemble and push-wall): focal's 3-evaluation mean is within 10 points of
     # its best by step 6000-10000, diffusion_ema's by 13000-15000; with the cosine schedule over 20000 steps the
     # rate at step 15000 is still 15 % of its peak, so the slowest method plateaus before the schedule anneals.
-    # ACT trains 10000 steps (method_steps, 16 evaluations every 625), a budget this CPU sets, not its curve: at
-    # ACT's width 128/800 a batch-64 step costs ~14x focal's here (0.6 s beside a second run, `act-precision`:
-    # 0.89 s alone), so 20000 steps are ~3.3 h per run, longer than a working session can hold a run (unfinished
-    # runs do not survive one). ACT trains at a constant rate, so its 10000 steps are the first half of a
-    # 20000-step curve, not a shorter schedule; a partial 20000-step run (lost with its session) had flattened
-    # on disassemble from step 6250 (75-85 % per evaluation) and still rose on push-wall at 12500 (50 -> 70 %).
+    # ACT trains 10000 steps (method_steps, 16 evaluations every 625), a budget the CPU sets, not its curve: at
+    # ACT's width 128/800 a batch-64 step costs 0.9-1.0 s on one thread of a 2-core CPU, 0.6-0.7 s on both
+    # (`act-precision`; ~12x focal's update), so 20000 steps are 3.5-5.5 h per run, more than a working session
+    # holds a run (an unfinished run does not outlive the session's disk); 10000 steps alone on two threads take
+    # ~2 h (`OMP_NUM_THREADS=2 lerobot-focal-bench grid ... --methods act --jobs 1`). ACT trains at a constant
+    # rate, so its 10000 steps are the first half of a 20000-step curve, not a shorter schedule. A partial
+    # 20000-step run (lost with its session) had flattened on disassemble from step 6250 (75-85 % per
+    # evaluation) and still rose on push-wall at 12500 (50 -> 70 %).
     "cpu_fair": (_CPU_FAIR := replace(
         _CPU_PLATEAU,
         name="cpu_fair",
@@ -280,7 +282,7 @@ PRESETS: dict[str, GridPreset] = {
             "sweep chose (1e-3 of 1e-4/3e-4/1e-3), LeRobot's ACT with its defaults (chunk 50, width 128/800) but at "
             "the rate the same sweep chose (1e-4 of its authors' 1e-5 and 1e-4; at 1e-5 it scored 4 % fresh on "
             "disassemble after 8000 steps). Both chosen rates are the highest swept. ACT trains 10000 steps (16 "
-            "evaluations every 625) at its constant rate: at 0.6 s per step on this CPU, 20000 would not fit a "
+            "evaluations every 625) at its constant rate: at 0.6-1.0 s per step on a 2-core CPU, 20000 would not fit a "
             "working session; its curve on push-wall may still rise after 10000."
         ),
     )),
