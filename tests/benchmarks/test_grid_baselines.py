@@ -244,6 +244,26 @@ def test_report_says_what_each_method_was_given(tmp_path):
         assert row in report, row
 
 
+def test_cost_table_flags_runs_of_one_method_on_machines_of_different_speed(tmp_path):
+    """focal's two runs updated at 0.06 and 0.16 s/step (another session, a slower host): the cost table shows
+    the range and says wall times compare only runs side by side; diffusion_ema's alike runs get no range."""
+    from lerobot_focal.benchmarks.grid.report import write_report
+    from tests.benchmarks.test_grid_estimators import _record
+
+    grid = {"preset": json.loads(json.dumps(PRESETS["cpu_fair"].to_dict())), "overrides": {},
+            "tasks": ["disassemble"], "methods": ["focal", "diffusion_ema"], "seeds": [0, 1]}
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    for m, seed, update in (("focal", 0, 0.06), ("focal", 1, 0.16), ("diffusion_ema", 0, 0.05),
+                            ("diffusion_ema", 1, 0.06)):
+        record = _record("disassemble", m, seed, 0.5, 0.4, "fresh")
+        record["update_s_per_step"] = update
+        ResultsFile(tmp_path / "results.jsonl").append(record)
+    cost = write_report(tmp_path).read_text().split("## Cost per run")[1].split("\n## ")[0]
+    assert "| FocalPolicy | 1 | 2.0 | 0.110 (0.060–0.160) |" in cost
+    assert "| DP with EMA (DDIM 10) | 1 | 2.0 | 0.055 |" in cost
+    assert "compare methods only across runs that ran side by side" in cost
+
+
 def test_a_method_trains_to_its_own_budget_with_as_many_evaluations(tmp_path):
     """method_steps: ACT's runs train 12000 steps with 16 evaluations (every 750), every other method the preset's
     20000; a budget that does not divide into the evaluations is refused; and a results folder recorded before

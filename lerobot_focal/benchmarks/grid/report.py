@@ -418,9 +418,16 @@ def write_report(out_dir: Path) -> Path:
         vals = {k: mean_std([agg[m][t][k][0] for t in agg[m]]) for k in ("nfe", "latency_ms", "update_s_per_step",
                                                                          "wall_s")}
         threads = sorted({r.torch_threads for r in records if r.method == m and r.torch_threads is not None})
+        low, high = _update_range(records, m)
+        spread = f" ({low:.3f}–{high:.3f})" if high > SPEED_SPREAD * low else ""
         md.append(f"| {label[m]} | {vals['nfe'][0]:.0f} | {vals['latency_ms'][0]:.1f} | "
-                  f"{vals['update_s_per_step'][0]:.3f} | {vals['wall_s'][0] / 60:.1f} | "
+                  f"{vals['update_s_per_step'][0]:.3f}{spread} | {vals['wall_s'][0] / 60:.1f} | "
                   f"{', '.join(map(str, threads)) or '–'} |")
+    if any(high > SPEED_SPREAD * low for low, high in (_update_range(records, m) for m in methods)):
+        md += ["", f"A method whose update time varies by more than {SPEED_SPREAD:g}× between its runs (its range in "
+               "brackets) ran on a machine whose speed changed between sessions (other jobs, another host): wall "
+               "times, the learning-efficiency minutes included, compare methods only across runs that ran side "
+               "by side; samples and success do not depend on it."]
     md += [""] + _paired_table(records, tasks, methods, label, [("success_top_k", f"top-{preset['top_k']}"),
                                                                ("success_fresh", "final, fresh episodes")])
     md += ["## Goals, measured side by side in this grid", ""] + _goals(records, tasks, methods, label) + [""]
@@ -545,6 +552,16 @@ def _plots(out_dir: Path, agg: dict, records: list[RunRecord], tasks: list[str],
     ax.grid(axis="y", alpha=0.3)
     save_png(fig, out_dir / "success_bars.png", dpi=100)
     _plot_learning_efficiency(out_dir, records, tasks, methods, label, preset)
+
+
+#: Update times of one method's runs further apart than this: the machine's speed changed between them.
+SPEED_SPREAD = 1.5
+
+
+def _update_range(records: list[RunRecord], method: str) -> tuple[float, float]:
+    """The fastest and slowest mean update time (s/step) of `method`'s runs; (nan, nan) without any."""
+    times = [r.update_s_per_step for r in records if r.method == method and r.update_s_per_step]
+    return (min(times), max(times)) if times else (math.nan, math.nan)
 
 
 def learning_efficiency(records: list[RunRecord], tasks: list[str], method: str, batch_size: int) -> dict | None:
