@@ -283,6 +283,9 @@ def test_a_method_trains_to_its_own_budget_with_as_many_evaluations(tmp_path):
     assert "--steps=12000" in command and "--env_eval_freq=750" in command and "--save_freq=750" in command
     with pytest.raises(ValueError, match="not a multiple of the preset's 16 evaluations"):
         PRESETS["cpu_fair"].with_overrides(method_steps=(("act", 12001),)).for_method("act")
+    # --steps shortens every method, ACT included (a smoke test of cpu_fair, the plateau probe's 24000 steps)
+    short = {s.method: s.preset for s in build_specs(parse_args([*argv, "--steps", "400", "--eval-every", "25"]))[0]}
+    assert {m: (p.steps, p.eval_every) for m, p in short.items()} == {"focal": (400, 25), "act": (400, 25)}
     _, grid = build_specs(parse_args(argv))
     recorded = json.loads(json.dumps(grid, default=str))
     del recorded["preset"]["method_steps"]  # as grid.json was written before the field existed

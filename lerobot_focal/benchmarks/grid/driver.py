@@ -132,8 +132,8 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
 #: Preset fields that do not change what a run measures, left out when two invocations' presets are compared.
 _DESCRIPTIVE_PRESET_FIELDS = ("notes",)
 #: Preset fields an override makes irrelevant: with --lr every method trains at it, whatever method_lr says (so
-#: a sweep resumes after a chosen rate is recorded in the preset).
-_SUPERSEDED = {"lr": ("method_lr",)}
+#: a sweep resumes after a chosen rate is recorded in the preset); with --steps every method trains that long.
+_SUPERSEDED = {"lr": ("method_lr",), "steps": ("method_steps",)}
 #: Preset fields of (method, value) pairs: an invocation may change a method's entry while the folder holds no
 #: finished run of that method (a budget or rate chosen after the grid began, before that method's first run).
 _PER_METHOD_FIELDS = ("method_lr", "method_steps")

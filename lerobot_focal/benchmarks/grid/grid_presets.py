@@ -122,8 +122,9 @@ class GridPreset:
 
     def for_method(self, method: str) -> GridPreset:
         """The preset a run of `method` trains with: its own step budget (``method_steps``) if it has one, with the
-        same number of evaluations; else this preset."""
-        steps = dict(self.method_steps).get(method)
+        same number of evaluations; else this preset. A ``--steps`` other than the preset's sets every method's
+        budget (as ``--lr`` sets every method's rate), so a shortened grid shortens every method."""
+        steps = None if "steps" in self.overridden else dict(self.method_steps).get(method)
         if steps is None or steps == self.steps:
             return self
         evaluations = self.steps // self.eval_every
