@@ -170,12 +170,12 @@ def merged_grid(previous: dict | None, grid: dict, out: Path) -> dict:
                  for k in sorted(old_over.keys() | new_over.keys()) if old_over.get(k) != new_over.get(k)]
     overridden = set(old_over) | set(new_over)
     superseded = {field for over in overridden & set(_SUPERSEDED) for field in _SUPERSEDED[over]}
-    differing += [(f"preset {k}", old_preset[k], new_preset[k])
-                  for k in sorted(old_preset.keys() & new_preset.keys())
-                  if k not in {*_DESCRIPTIVE_PRESET_FIELDS, "overridden", *overridden, *superseded}
-                  and old_preset[k] != new_preset[k]
-                  and not (k in _PER_METHOD_FIELDS
-                           and _per_method_change_is_free(old_preset[k], new_preset[k], _methods_run(out)))]
+    changed = [k for k in sorted(old_preset.keys() & new_preset.keys())
+               if k not in {*_DESCRIPTIVE_PRESET_FIELDS, "overridden", *overridden, *superseded}
+               and old_preset[k] != new_preset[k]]
+    run = _methods_run(out) if set(changed) & set(_PER_METHOD_FIELDS) else set()
+    differing += [(f"preset {k}", old_preset[k], new_preset[k]) for k in changed
+                  if not (k in _PER_METHOD_FIELDS and _per_method_change_is_free(old_preset[k], new_preset[k], run))]
     if differing:
         shown = "; ".join(f"{name}: {old!r} there, {new!r} now" for name, old, new in differing)
         raise SystemExit(

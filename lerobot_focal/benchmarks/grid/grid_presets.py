@@ -256,12 +256,12 @@ PRESETS: dict[str, GridPreset] = {
     # its best by step 6000-10000, diffusion_ema's by 13000-15000; with the cosine schedule over 20000 steps the
     # rate at step 15000 is still 15 % of its peak, so the slowest method plateaus before the schedule anneals.
     # ACT trains 10000 steps (method_steps, 16 evaluations every 625), a budget the CPU sets, not its curve: at
-    # ACT's width 128/800 a batch-64 step costs 0.9-1.0 s on one thread of a 2-core CPU, 0.6-0.7 s on both
-    # (`act-precision`; ~12x focal's update), so 20000 steps are 3.5-5.5 h per run and ACT's 15 runs 50-80 h;
-    # 10000 steps alone on two threads take ~2 h (`OMP_NUM_THREADS=2 lerobot-focal-bench grid ... --methods act
-    # --jobs 1`). ACT trains at a constant rate, so its 10000 steps are the first half of a 20000-step curve,
-    # not a shorter schedule. A partial 20000-step run (its checkpoints lost) had flattened on disassemble from
-    # step 6250 (75-85 % per evaluation) and still rose on push-wall at 12500 (50 -> 70 %).
+    # ACT's width 128/800 a batch-64 step costs 0.89 s on one thread of a 2-core CPU (`act-precision`, float32),
+    # so 20000 steps are ~5 h per run and ACT's 15 runs ~75 h; 10000 steps take ~2.5 h on one thread, less alone
+    # on both cores (`OMP_NUM_THREADS=2 lerobot-focal-bench grid ... --methods act --jobs 1`). ACT trains at a
+    # constant rate, so its 10000 steps are the first half of a 20000-step curve, not a shorter schedule. A
+    # partial 20000-step run (its checkpoints lost) had flattened on disassemble from step 6250 (75-85 % per
+    # evaluation) and still rose on push-wall at 12500 (50 -> 70 %).
     "cpu_fair": (_CPU_FAIR := replace(
         _CPU_PLATEAU,
         name="cpu_fair",
@@ -282,8 +282,8 @@ PRESETS: dict[str, GridPreset] = {
             "sweep chose (1e-3 of 1e-4/3e-4/1e-3), LeRobot's ACT with its defaults (chunk 50, width 128/800) but at "
             "the rate the same sweep chose (1e-4 of its authors' 1e-5 and 1e-4; at 1e-5 it scored 4 % fresh on "
             "disassemble after 8000 steps). Both chosen rates are the highest swept. ACT trains 10000 steps (16 "
-            "evaluations every 625) at its constant rate: at 0.6-1.0 s per step on a 2-core CPU, 20000 steps would "
-            "cost 3.5-5.5 h a run; its curve on push-wall may still rise after 10000."
+            "evaluations every 625) at its constant rate: at 0.89 s per step on one CPU thread, 20000 steps would "
+            "cost ~5 h a run; its curve on push-wall may still rise after 10000."
         ),
     )),
     # From a camera: one RGB camera + the 9-d state, no object poses, for focal, diffusion with its EMA and ACT

@@ -414,16 +414,17 @@ def write_report(out_dir: Path) -> Path:
            "with (a run alone on the machine may use every core); – where the record predates the field.", "",
            "| Method | NFE per chunk | latency per chunk (ms, batch 1) | update (s/step) | "
            "wall time per run (min) | torch threads |", "|---|---|---|---|---|---|"]
+    ranges = {m: _update_range(records, m) for m in methods}
     for m in methods:
         vals = {k: mean_std([agg[m][t][k][0] for t in agg[m]]) for k in ("nfe", "latency_ms", "update_s_per_step",
                                                                          "wall_s")}
         threads = sorted({r.torch_threads for r in records if r.method == m and r.torch_threads is not None})
-        low, high = _update_range(records, m)
+        low, high = ranges[m]
         spread = f" ({low:.3f}–{high:.3f})" if high > SPEED_SPREAD * low else ""
         md.append(f"| {label[m]} | {vals['nfe'][0]:.0f} | {vals['latency_ms'][0]:.1f} | "
                   f"{vals['update_s_per_step'][0]:.3f}{spread} | {vals['wall_s'][0] / 60:.1f} | "
                   f"{', '.join(map(str, threads)) or '–'} |")
-    if any(high > SPEED_SPREAD * low for low, high in (_update_range(records, m) for m in methods)):
+    if any(high > SPEED_SPREAD * low for low, high in ranges.values()):
         md += ["", f"A method whose update time varies by more than {SPEED_SPREAD:g}× between its runs (its range in "
                "brackets) ran on a machine whose speed changed between sessions (other jobs, another host): wall "
                "times, the learning-efficiency minutes included, compare methods only across runs that ran side "

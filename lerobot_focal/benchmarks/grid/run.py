@@ -131,8 +131,8 @@ def child_env(preset: GridPreset) -> dict[str, str]:
     """Environment of a run's LeRobot processes: offline, no W&B, heap-only malloc, the preset's torch threads.
 
     An ``OMP_NUM_THREADS`` already in the environment wins over the preset's, as the malloc settings do: a run
-    alone on the machine (``--jobs 1``) may use every core (ACT's step is 1.4-1.6x faster on two threads than on
-    one). Threads change a run's speed, not what it computes; each record keeps the count (``torch_threads``)."""
+    alone on the machine (``--jobs 1``) may use every core. Threads change a run's speed, not what it computes;
+    each record keeps the count (``torch_threads``)."""
     env = {**MALLOC_ENV, **os.environ, "WANDB_MODE": "disabled", "HF_HUB_OFFLINE": "1",
            "LEROBOT_FOCAL_FAST_READER": "1"}
     if preset.num_threads and "OMP_NUM_THREADS" not in os.environ:
