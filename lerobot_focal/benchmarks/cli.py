@@ -10,6 +10,7 @@
     lerobot-focal-bench expert-gap --out DIR            (a grid's final checkpoints against the scripted expert)
     lerobot-focal-bench tau-profile --out DIR           (where along the flow focal's one-step map is wrong)
     lerobot-focal-bench variant-eval --variant V --out DIR  (a grid's final checkpoints, another inference setting)
+    lerobot-focal-bench checkpoint-eval --out DIR       (a run's kept late checkpoints on the same fresh episodes)
     lerobot-focal-bench train-step [--compile]          (what makes a CPU training step cheaper)
     lerobot-focal-bench camera-step [--clouds DATASET]  (a point-cloud / image training step against a low-dim one:
                                                         bf16 autocast, channels-last, fewer points; loss curves)
@@ -42,6 +43,7 @@ _DELEGATED = {
     "expert-gap": "lerobot_focal.benchmarks.grid.diagnostics.expert_gap",
     "tau-profile": "lerobot_focal.benchmarks.grid.diagnostics.tau_profile",
     "variant-eval": "lerobot_focal.benchmarks.grid.diagnostics.variant_eval",
+    "checkpoint-eval": "lerobot_focal.benchmarks.grid.diagnostics.checkpoint_eval",
     "execution-cost": "lerobot_focal.benchmarks.execution_cost",
     "eval-profile": "lerobot_focal.benchmarks.eval_profile",
     "rollout": "lerobot_focal.benchmarks.rollout_latency",
@@ -86,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
                                                         "map is still wrong")
     sub.add_parser("variant-eval", add_help=False, help="a grid's final checkpoints with another inference setting "
                                                          "on the same fresh episodes")
+    sub.add_parser("checkpoint-eval", add_help=False, help="a run's kept late checkpoints on the episodes of its final "
+                                                            "evaluation: do they differ, or only the draws?")
     sub.add_parser("train-step", add_help=False, help="CPU training-step variants: optimizer, threads, batch, compile")
     sub.add_parser("camera-step", add_help=False, help="a point-cloud or image training step against a low-dim one, "
                                                         "and cheaper variants with their loss curves")

@@ -100,6 +100,13 @@ def test_pruning_keeps_the_newest_checkpoints(tmp_path):
     assert sorted(checkpoints(run)) == [8] and (run / "train" / "checkpoints" / "last").resolve().name == "000008"
 
 
+def test_pruning_spares_the_checkpoints_asked_for_from_a_step_on(tmp_path):
+    """`grid --keep-checkpoints-from 4` keeps steps 4, 6 and 8 for checkpoint-eval, and still drops step 2."""
+    run = _run_dir(tmp_path, [2, 4, 6, 8], evals_done=4)
+    prune_checkpoints(run, keep=1, keep_from=4)
+    assert sorted(checkpoints(run)) == [4, 6, 8]
+
+
 @pytest.mark.subprocess
 def test_housekeeping_runs_beside_the_child_and_its_errors_do_not_stop_it(tmp_path):
     import sys

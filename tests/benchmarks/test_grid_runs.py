@@ -98,6 +98,43 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert tau_profile.main(["--out", str(out), "--work", str(work), "--methods", "wo_las"]) == 2
 
 
+def test_kept_checkpoints_are_evaluated_on_the_final_evaluations_own_episodes(work, tmp_path, capsys):
+    """`grid --keep-checkpoints-from 2` keeps step 2's checkpoint; checkpoint-eval scores it on the very
+    placements and policy noise of the grid's final evaluation, which an evaluation of the final checkpoint under
+    checkpoint-eval's own file names reproduces exactly (so differences between steps are the checkpoints')."""
+    from lerobot_focal.benchmarks.grid.diagnostics import checkpoint_eval
+    from lerobot_focal.benchmarks.grid.resume import checkpoints
+    from lerobot_focal.benchmarks.grid.specs import specs_of_grid
+
+    out = tmp_path / "out"
+    args = [*TINY_ARGS, "--methods", "focal", "--final-episodes", "2", "--out", str(out), "--work", str(work)]
+    assert driver.main([*args, "--keep-checkpoints-from", "2"]) == 0
+    spec = specs_of_grid(out, work)["reach|focal|0"]
+    assert sorted(checkpoints(spec.run_dir)) == [2, 4]  # not pruned to the last one
+    assert "keep_checkpoints_from" not in (out / "grid.json").read_text()  # keeping files changes no result
+
+    capsys.readouterr()
+    assert checkpoint_eval.main(["--out", str(out), "--work", str(work)]) == 0
+    entry = json.loads((out / "checkpoint_eval.json").read_text())["reach|focal|0"]
+    assert entry["steps"] == [2, 4] and entry["shared_episodes"] == 2 and entry["periodic_episodes"] == 2
+    record = ResultsFile(out / "results.jsonl").records()[0]
+    assert entry["periodic_success"] == [c["success"] for c in record.curve]
+    assert entry["shared_success"][1] == record.success_fresh  # the final step is the grid's own evaluation
+    assert sorted(entry["episodes"]["2"]) == sorted(entry["episodes"]["4"])  # same placements
+    assert (out / "checkpoint_eval.png").stat().st_size > 5000
+    assert "| same 2 episodes, % |" in (out / "checkpoint_eval.md").read_text()
+    assert "step 2:" in capsys.readouterr().out
+    assert checkpoint_eval.main(["--out", str(out), "--work", str(work)]) == 0
+    assert "step 2:" not in capsys.readouterr().out  # evaluated already: kept, not run again
+
+    def by_seed(name: str) -> dict:
+        eps = [json.loads(x) for x in (spec.run_dir / f"{name}_episodes.jsonl").read_text().splitlines() if x]
+        return {e["seed"]: (e["success"], e["action_total_variation"]) for e in eps if e.get("seed") is not None}
+
+    checkpoint_eval.evaluate_checkpoint(spec, 4, checkpoints(spec.run_dir)[4])
+    assert by_seed("ckpt4") == by_seed("final")  # same episodes and noise: identical actions, to the last digit
+
+
 def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     pytest.importorskip("ray")
     from lerobot_focal.benchmarks.grid.demos import task_data

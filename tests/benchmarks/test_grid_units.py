@@ -526,3 +526,38 @@ def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path)
     # best mean 70 %; 90 % of it (63 %) first reached at the last evaluation: 128 k samples, 15 minutes
     assert "| FocalPolicy | 2 | 70.0 | 128 k | 15.0 |" in report
     assert (tmp_path / "learning_efficiency.png").stat().st_size > 10_000
+
+
+def test_cochran_q_matches_the_hand_computed_statistic_and_ignores_all_or_nothing_episodes():
+    """Five placements × three checkpoints: column sums 4, 2, 1, row sums 2, 1, 3, 0, 1, so
+    Q = (3 − 1)(3·21 − 7²) / (3·7 − 15) = 14/3 and, on 2 degrees of freedom, p = exp(−Q/2)."""
+    import math
+
+    import numpy as np
+
+    from lerobot_focal.benchmarks.grid.diagnostics.checkpoint_eval import cochran_q
+
+    x = np.array([[1, 1, 0], [1, 0, 0], [1, 1, 1], [0, 0, 0], [1, 0, 0]])
+    c = cochran_q(x)
+    assert c["q"] == pytest.approx(14 / 3) and c["df"] == 2 and c["p"] == pytest.approx(math.exp(-7 / 3))
+    assert c["informative_episodes"] == 3  # the all-solved and the none-solved placement tell nothing apart
+    same = cochran_q(np.array([[1, 1], [0, 0], [1, 1]]))
+    assert same["q"] == 0.0 and same["p"] == 1.0  # identical checkpoints: no evidence of a difference
+    with pytest.raises(ValueError, match="≥ 2 checkpoints"):
+        cochran_q(np.ones((4, 1)))
+
+
+def test_checkpoint_summary_pairs_episodes_by_seed_and_refuses_other_episodes():
+    from lerobot_focal.benchmarks.grid.diagnostics.checkpoint_eval import render, summarize
+
+    by_step = {20: {7: 1.0, 8: 1.0, 9: 0.0, 10: 1.0}, 15: {10: 0.0, 9: 0.0, 8: 1.0, 7: 0.0}}  # any seed order
+    entry = summarize(by_step, {15: 0.9, 20: 0.35}, periodic_episodes=20)
+    assert entry["steps"] == [15, 20] and entry["shared_success"] == [0.25, 0.75]
+    assert entry["periodic_success"] == [0.9, 0.35] and entry["shared_episodes"] == 4
+    assert entry["binomial_sd_shared"] == pytest.approx((0.5 * 0.5 / 4) ** 0.5)
+    assert entry["cochran"]["informative_episodes"] == 2  # seeds 7 and 10 differ between the checkpoints
+    md = render({"disassemble|focal|0": entry})
+    assert "## disassemble · focal · 0" in md and "| same 4 episodes, % | 25 | 75 |" in md
+    assert "| periodic evaluation (20 own episodes), % | 90 | 35 |" in md and "Cochran's Q" in md
+    with pytest.raises(ValueError, match="other episodes than the final one"):
+        summarize({15: {1: 1.0}, 20: {2: 1.0}}, {}, periodic_episodes=20)

@@ -17,6 +17,7 @@ import json
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from ...console import doc_parser
@@ -75,6 +76,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--device", default=None, help="override the preset's device (cpu, cuda)")
     p.add_argument("--down-dims", default=None, type=_int_tuple,
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
+    p.add_argument("--keep-checkpoints-from", dest="keep_checkpoints_from", type=int, default=None, metavar="STEP",
+                   help="keep every step checkpoint from STEP on, not only the last (for `lerobot-focal-bench "
+                        "checkpoint-eval`; changes no result, so it is not recorded in grid.json)")
     return p.parse_args(argv)
 
 
@@ -124,6 +128,8 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     check_seed_ranges(preset, seeds, rescore_episodes=RESCORE_BLOCKS * preset.eval_episodes)
     work = (args.work or Path("outputs/bench")).resolve()
     specs = make_specs(preset, tasks, [[m.name for m in p] for p in phases], seeds, work)
+    if args.keep_checkpoints_from is not None:
+        specs = [replace(s, keep_checkpoints_from=args.keep_checkpoints_from) for s in specs]
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
                    "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],
                    "seeds": seeds}

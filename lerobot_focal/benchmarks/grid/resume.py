@@ -17,6 +17,8 @@ any change to the method's or preset's arguments it starts over.
 
 While a run trains only its two newest checkpoints are kept (the newest one's evaluation may not have
 completed), and only the final one once it ends: the paper preset's checkpoints are gigabytes each.
+``grid --keep-checkpoints-from STEP`` keeps every checkpoint from that step on as well, for
+``lerobot-focal-bench checkpoint-eval`` (late checkpoints on the same fresh episodes).
 """
 
 from __future__ import annotations
@@ -44,11 +46,13 @@ def checkpoints(run_dir: Path) -> dict[int, Path]:
     return {int(d.name): d for d in root.iterdir() if d.name.isdigit() and not d.is_symlink()}
 
 
-def prune_checkpoints(run_dir: Path, keep: int) -> None:
-    """Delete all but the ``keep`` newest step checkpoints (safe while LeRobot writes the newest one)."""
+def prune_checkpoints(run_dir: Path, keep: int, keep_from: int | None = None) -> None:
+    """Delete all but the ``keep`` newest step checkpoints (safe while LeRobot writes the newest one), and
+    those from step ``keep_from`` on (``grid --keep-checkpoints-from``: for ``checkpoint-eval``)."""
     found = checkpoints(run_dir)
     for step in sorted(found)[:-keep]:
-        shutil.rmtree(found[step], ignore_errors=True)
+        if keep_from is None or step < keep_from:
+            shutil.rmtree(found[step], ignore_errors=True)
 
 
 def read_segments(run_dir: Path) -> list[dict]:

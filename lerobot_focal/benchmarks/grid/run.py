@@ -197,7 +197,7 @@ def run_one(spec: RunSpec) -> RunRecord:
 
         def housekeeping() -> None:
             progress()
-            prune_checkpoints(out, keep=2)
+            prune_checkpoints(out, keep=2, keep_from=spec.keep_checkpoints_from)
 
         try:
             run_logged(command if point is None else resume_command(command[0], point), out / "train.log", env,
@@ -209,7 +209,7 @@ def run_one(spec: RunSpec) -> RunRecord:
                                 f"{err}") from err
             raise
         progress()  # the evaluations since the last poll
-    prune_checkpoints(out, keep=1)
+    prune_checkpoints(out, keep=1, keep_from=spec.keep_checkpoints_from)
     kept_s, spans, lost_s, resumed_from = earlier_segments(out)
     wall_s = kept_s + time.perf_counter() - t0
 

@@ -27,6 +27,9 @@ class RunSpec:
     preset: GridPreset
     data: TaskData
     work: Path
+    # Step checkpoints from this step on survive the run (``grid --keep-checkpoints-from``); None: only the last.
+    # Not part of the preset: keeping files changes no result.
+    keep_checkpoints_from: int | None = None
 
     @property
     def key(self) -> str:
