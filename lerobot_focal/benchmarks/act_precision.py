@@ -9,12 +9,17 @@ twice from the same weights, in float32 and under CPU bf16 autocast, on the same
 the same noise (dropout, the VAE's sample) at every step, and reports the step time of each and the two loss
 curves. A cheaper setting is adopted only where the curves agree as `camera-step`'s did (within a fraction of a
 percent); otherwise the grid keeps ACT in float32, its authors' precision.
+
+``--threads N`` times the steps on N torch threads (default 1, as a grid run beside another gets). ``--dropout-cost``
+adds a third row, float32 with ACT's dropout set to 0 (the same weights otherwise): a timing row only, as it is
+another training, which says how much of ACT's CPU step is drawing dropout masks.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import statistics
 import time
@@ -31,6 +36,10 @@ TARGETS = ("action", "action_is_pad")
 #: Largest relative difference of the two losses (mean of the last fifth) at which bf16 counts as the same training;
 #: camera-step's bf16 variants of focal differ by 0.1-0.3 %.
 AGREEMENT = 0.01
+
+
+#: The timing-only row of ``--dropout-cost``: ACT without its dropout, which trains another ACT.
+NO_DROPOUT = "float32, dropout 0"
 
 
 def _policy_and_batches(root: Path, repo_id: str, preset_name: str, batch: int):
@@ -72,10 +81,22 @@ def _policy_and_batches(root: Path, repo_id: str, preset_name: str, batch: int):
     return ACTPolicy(config), config, batches()
 
 
-def measure(root: Path, repo_id: str, preset_name: str, steps: int, batch: int) -> dict:
-    torch.set_num_threads(1)
+def _without_dropout(policy, config):
+    """The same ACT (same weights) built with ``dropout=0``: LeRobot's ACT reads its dropout from the config."""
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    twin = ACTPolicy(dataclasses.replace(config, dropout=0.0))
+    twin.load_state_dict(policy.state_dict())
+    return twin
+
+
+def measure(root: Path, repo_id: str, preset_name: str, steps: int, batch: int, threads: int = 1,
+            dropout_cost: bool = False) -> dict:
+    torch.set_num_threads(threads)
     policy, config, batches = _policy_and_batches(root, repo_id, preset_name, batch)
     runs = {"float32": (policy, False), "bf16 autocast": (copy.deepcopy(policy), True)}
+    if dropout_cost:
+        runs[NO_DROPOUT] = (_without_dropout(policy, config), False)
     preset = config.get_optimizer_preset()  # what lerobot-train builds for ACT: AdamW, clip at grad_clip_norm
     optimizers = {name: preset.build(p.parameters()) for name, (p, _) in runs.items()}
     losses: dict[str, list[float]] = {name: [] for name in runs}
@@ -104,12 +125,14 @@ def measure(root: Path, repo_id: str, preset_name: str, steps: int, batch: int) 
         row["speedup"] = base["ms_per_step"] / row["ms_per_step"]
         row["loss_difference"] = row["loss_last_fifth"] / base["loss_last_fifth"] - 1
     return {"data": str(root), "preset": preset_name, "steps": steps, "batch": batch, "chunk": config.chunk_size,
-            "width": [config.dim_model, config.dim_feedforward], "lr": config.optimizer_lr, "threads": 1,
+            "width": [config.dim_model, config.dim_feedforward], "lr": config.optimizer_lr, "threads": threads,
             "rows": rows, "loss_curves": losses}
 
 
 def render(result: dict) -> str:
-    md = [f"# ACT in float32 and under bf16 autocast on a CPU (the grid's ACT, batch {result['batch']}, one thread)",
+    threads = result.get("threads", 1)
+    md = [f"# ACT in float32 and under bf16 autocast on a CPU (the grid's ACT, batch {result['batch']}, "
+          f"{'one thread' if threads == 1 else f'{threads} threads'})",
           "", f"`lerobot-focal-bench act-precision --data {result['data']}`: LeRobot's ACT with the {result['preset']} "
           f"grid's settings (chunk {result['chunk']}, width {result['width'][0]}/{result['width'][1]}, lr "
           f"{result['lr']:g}), trained {result['steps']} steps twice from the same weights on the same batches and "
@@ -117,6 +140,10 @@ def render(result: dict) -> str:
           "| precision | ms / step | speed-up | loss | loss vs float32 |", "|---|---|---|---|---|"]
     md += [f"| {name} | {r['ms_per_step']:.0f} | {r['speedup']:.2f}× | {r['loss_last_fifth']:.4f} | "
            f"{r['loss_difference'] * 100:+.1f} % |" for name, r in result["rows"].items()]
+    if NO_DROPOUT in result["rows"]:
+        share = 1 - 1 / result["rows"][NO_DROPOUT]["speedup"]
+        md += ["", f"Without dropout (a timing row: another training, so its loss is not a candidate) a step takes "
+               f"{share:.0%} less: that share of ACT's float32 step is its dropout."]
     diff = result["rows"]["bf16 autocast"]["loss_difference"]
     md += ["", f"The curves agree (within {AGREEMENT:.0%}): bf16 autocast would train the same ACT, cheaper."
            if abs(diff) <= AGREEMENT else
@@ -134,7 +161,7 @@ def _plot(path: Path, curves: dict[str, list[float]]) -> None:
     from lerobot_focal.figures import save_png
 
     fig, ax = plt.subplots(figsize=(5, 3.2))
-    for (name, values), style in zip(curves.items(), ("-", "--"), strict=False):
+    for (name, values), style in zip(curves.items(), ("-", "--", ":"), strict=False):
         window = max(1, len(values) // 20)
         smooth = np.convolve(values, np.ones(window) / window, mode="valid")
         ax.plot(np.arange(len(smooth)) + window, smooth, ls=style, label=name)
@@ -152,9 +179,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="cpu_fair", help="the grid preset whose ACT settings to use")
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads for the steps (default 1)")
+    parser.add_argument("--dropout-cost", action="store_true",
+                        help="also time float32 ACT with dropout 0 (same weights): dropout's share of a step")
     parser.add_argument("--out", type=Path, default=Path("docs/benchmarks"))
     args: argparse.Namespace = parser.parse_args(argv)
-    result = measure(args.data, args.repo_id, args.preset, args.steps, args.batch)
+    if args.threads < 1:
+        parser.error(f"--threads {args.threads}: give 1 or more")
+    result = measure(args.data, args.repo_id, args.preset, args.steps, args.batch, args.threads, args.dropout_cost)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "act_precision.json").write_text(json.dumps(result, indent=1))
     _plot(args.out / "act_precision.png", result["loss_curves"])

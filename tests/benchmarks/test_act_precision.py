@@ -32,3 +32,22 @@ def test_act_precision_trains_both_precisions_from_the_same_start(tmp_path):
     assert all(len(c) == 3 for c in curves.values())
     assert "| bf16 autocast |" in (tmp_path / "out" / "act_precision.md").read_text()
     assert (tmp_path / "out" / "act_precision.png").stat().st_size > 5_000
+
+
+def test_act_precision_times_dropout_and_threads_when_asked(tmp_path):
+    """--dropout-cost adds float32 ACT with dropout 0 from the same weights (a timing row); --threads is recorded."""
+    root = tmp_path / "data"
+    collect(parse_args(["--root", str(root), "--repo_id", "local/reach", "--tasks", "reach", "--episodes", "1",
+                        "--obs_types", "state,env_state", "--max_steps", "60", "--seed", "1000"]))
+    assert main(["--data", str(root), "--repo-id", "local/reach", "--steps", "3", "--batch", "8", "--threads", "2",
+                 "--dropout-cost", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "act_precision.json").read_text())
+    curves = result["loss_curves"]
+    assert result["threads"] == 2 and set(curves) == {"float32", "bf16 autocast", "float32, dropout 0"}
+    # Same weights, batch and VAE noise at step 0, no dropout masks: a different loss from float32's own.
+    assert curves["float32, dropout 0"][0] != curves["float32"][0]
+    assert result["rows"]["float32, dropout 0"]["ms_per_step"] > 0
+    md = (tmp_path / "out" / "act_precision.md").read_text()
+    assert "2 threads" in md and "of ACT's float32 step is its dropout" in md
+    with pytest.raises(SystemExit):
+        main(["--data", str(root), "--threads", "0"])
