@@ -123,6 +123,8 @@ def test_kept_checkpoints_are_evaluated_on_the_final_evaluations_own_episodes(wo
     assert sorted(entry["episodes"]["2"]) == sorted(entry["episodes"]["4"])  # same placements
     assert (out / "checkpoint_eval.png").stat().st_size > 5000
     assert "| same 2 episodes, % |" in (out / "checkpoint_eval.md").read_text()
+    assert "[checkpoint_eval](checkpoint_eval.md) (`lerobot-focal-bench checkpoint-eval`)" in (
+        out / "report.md").read_text()
     assert "step 2:" in capsys.readouterr().out
     assert checkpoint_eval.main(["--out", str(out), "--work", str(work)]) == 0
     assert "step 2:" not in capsys.readouterr().out  # evaluated already: kept, not run again

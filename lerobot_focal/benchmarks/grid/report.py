@@ -469,6 +469,8 @@ DIAGNOSTICS: tuple[tuple[str, str, str], ...] = (
                                       "wrong, on its demos and on held-out episodes?"),
     ("variant_*.md", "variant-eval", "Would the final checkpoints act better with another inference setting, on "
                                      "the same fresh episodes?"),
+    ("checkpoint_eval.md", "checkpoint-eval", "Do a run's late checkpoints act differently, or do only the draws of "
+                                              "its periodic evaluations swing? Each on the same fresh episodes."),
 )
 
 

@@ -17,8 +17,8 @@ tests whether the checkpoints' success rates on those placements differ by more 
 
 Writes ``checkpoint_eval.json`` (per run: steps, the periodic evaluation at each step, success on the shared
 episodes, each episode's outcome, the test), ``checkpoint_eval.md`` and ``checkpoint_eval.png`` beside the
-grid's report; resumable (checkpoints already evaluated are kept). Run it between grid invocations, not beside a
-running grid.
+grid's report, and re-renders the report (which links them); resumable (checkpoints already evaluated are
+kept). Run it between grid invocations, not beside a running grid.
 """
 
 from __future__ import annotations
@@ -213,6 +213,9 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / f"{TOOL}.md").write_text(render(done))
     plot(done, args.out / f"{TOOL}.png")
     print(render(done))
+    from ..report import write_report
+
+    print(f"[checkpoint-eval] report with a link to {TOOL}.md: {write_report(args.out)}")
     return 0
 
 
