@@ -235,6 +235,10 @@ def test_report_summary_has_the_protocol_numbers_per_method_and_task(tmp_path):
     assert "| DP w. FCO (DDIM 10) − DP (DDIM 10): FCO added to diffusion" in module
     assert "+5.0 [+5.0, +5.0] (n=4; 4/0/0)" in module and "w/o LAS" not in module
     assert "focal within 10 points of the paper on pick-place: 65.0 vs 70.7" in report
+    assert "focal's average ≥ the paper's (75.8): 65.0 → **MISSED**" in report
+    # Each baseline on both numbers the benchmark judges: the top-5 and the final checkpoint on fresh episodes.
+    assert ("- focal ≥ DP (DDIM 10) (final checkpoint, fresh episodes, paired over 4 task-seed pairs): +20.0 points"
+            in report)
     # One seed of two so far: the cell says so instead of printing a spread of "± 0.0" over a single run.
     assert "| FocalPolicy (512-pt cloud) | 75.0 (1 seed) | 75.0 (1 seed) | 75.0 (1 seed) |" in report
     assert "| FocalPolicy | 65.0 ± 5.0 | 65.0 ± 5.0 |" in report
@@ -561,3 +565,27 @@ def test_checkpoint_summary_pairs_episodes_by_seed_and_refuses_other_episodes():
     assert "| periodic evaluation (20 own episodes), % | 90 | 35 |" in md and "Cochran's Q" in md
     with pytest.raises(ValueError, match="other episodes than the final one"):
         summarize({15: {1: 1.0}, 20: {2: 1.0}}, {}, periodic_episodes=20)
+
+
+def test_a_goal_met_on_the_mean_says_whether_its_interval_shows_it():
+    from lerobot_focal.benchmarks.grid.report import _verdict
+
+    nan = float("nan")
+    assert _verdict({"mean": 0.2, "lo": 0.05, "hi": 0.35}) == "**met**"
+    assert _verdict({"mean": 0.2, "lo": -0.2, "hi": 0.6}).endswith("(the interval still includes 0: not yet shown)")
+    assert _verdict({"mean": 0.1, "lo": nan, "hi": nan}) == "**met** on the mean (one pair: no interval yet)"
+    assert _verdict({"mean": -0.1, "lo": -0.3, "hi": 0.1}) == "**MISSED** (the interval still includes 0)"
+    assert _verdict({"mean": -0.1, "lo": -0.2, "hi": -0.05}) == "**MISSED**"
+
+
+def test_the_average_goal_says_it_is_not_measured_until_a_seed_has_every_task():
+    from lerobot_focal.benchmarks.grid.report import _goals
+    from tests.benchmarks.test_grid_estimators import _record
+
+    records = [RunRecord(**_record(t, "focal", 0, 0.9, 0.8, "fresh")) for t in ("pick-place", "sweep-into")]
+    tasks = ["pick-place", "sweep-into", "disassemble"]
+    goals = "\n".join(_goals(records, tasks, ["focal"], {"focal": "FocalPolicy"}))
+    assert "focal's average ≥ the paper's (76.0): not measured yet" in goals and "focal has 2 of 3 tasks" in goals
+    records.append(RunRecord(**_record("disassemble", "focal", 0, 0.9, 0.8, "fresh")))
+    assert "focal's average ≥ the paper's (76.0): 90.0 → **met**" in "\n".join(
+        _goals(records, tasks, ["focal"], {"focal": "FocalPolicy"}))
