@@ -131,11 +131,12 @@ def measure(root: Path, repo_id: str, preset_name: str, steps: int, batch: int, 
 
 def render(result: dict) -> str:
     threads = result.get("threads", 1)
+    times = "three times" if NO_DROPOUT in result["rows"] else "twice"
     md = [f"# ACT in float32 and under bf16 autocast on a CPU (the grid's ACT, batch {result['batch']}, "
           f"{'one thread' if threads == 1 else f'{threads} threads'})",
           "", f"`lerobot-focal-bench act-precision --data {result['data']}`: LeRobot's ACT with the {result['preset']} "
           f"grid's settings (chunk {result['chunk']}, width {result['width'][0]}/{result['width'][1]}, lr "
-          f"{result['lr']:g}), trained {result['steps']} steps twice from the same weights on the same batches and "
+          f"{result['lr']:g}), trained {result['steps']} steps {times} from the same weights on the same batches and "
           "noise. Step time: median over the steps; loss: mean of the last fifth ([curves](act_precision.png)).", "",
           "| precision | ms / step | speed-up | loss | loss vs float32 |", "|---|---|---|---|---|"]
     md += [f"| {name} | {r['ms_per_step']:.0f} | {r['speedup']:.2f}× | {r['loss_last_fifth']:.4f} | "

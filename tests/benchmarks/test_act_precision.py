@@ -44,7 +44,7 @@ def test_act_precision_times_dropout_and_threads_when_asked(tmp_path):
     result = json.loads((tmp_path / "out" / "act_precision.json").read_text())
     curves = result["loss_curves"]
     assert result["threads"] == 2 and set(curves) == {"float32", "bf16 autocast", "float32, dropout 0"}
-    # Same weights, batch and VAE noise at step 0, no dropout masks: a different loss from float32's own.
+    # Same weights and batch at step 0, but no dropout masks: a different loss from float32's own.
     assert curves["float32, dropout 0"][0] != curves["float32"][0]
     assert result["rows"]["float32, dropout 0"]["ms_per_step"] > 0
     md = (tmp_path / "out" / "act_precision.md").read_text()

@@ -534,7 +534,7 @@ def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path)
 
 def test_cochran_q_matches_the_hand_computed_statistic_and_ignores_all_or_nothing_episodes():
     """Five placements × three checkpoints: column sums 4, 2, 1, row sums 2, 1, 3, 0, 1, so
-    Q = (3 − 1)(3·21 − 7²) / (3·7 − 15) = 14/3 and, on 2 degrees of freedom, p = exp(−Q/2)."""
+    Q = (3 − 1)(3·21 − 7²) / (3·7 − 15) = 14/3 and, on 2 degrees of freedom, χ² gives p = exp(−Q/2)."""
     import math
 
     import numpy as np
@@ -543,12 +543,31 @@ def test_cochran_q_matches_the_hand_computed_statistic_and_ignores_all_or_nothin
 
     x = np.array([[1, 1, 0], [1, 0, 0], [1, 1, 1], [0, 0, 0], [1, 0, 0]])
     c = cochran_q(x)
-    assert c["q"] == pytest.approx(14 / 3) and c["df"] == 2 and c["p"] == pytest.approx(math.exp(-7 / 3))
+    assert c["q"] == pytest.approx(14 / 3) and c["df"] == 2 and c["p_chi2"] == pytest.approx(math.exp(-7 / 3))
     assert c["informative_episodes"] == 3  # the all-solved and the none-solved placement tell nothing apart
+    # Exact here: of the 3·3·3 equally likely ways to place the three informative rows' outcomes, the observed
+    # one (every row's success on checkpoint 1) and those at least as lopsided are few.
+    assert 0 < c["p"] < 0.5 and cochran_q(x)["p"] == c["p"]  # seeded: the same outcomes, the same p
     same = cochran_q(np.array([[1, 1], [0, 0], [1, 1]]))
     assert same["q"] == 0.0 and same["p"] == 1.0  # identical checkpoints: no evidence of a difference
+    # One placement tells two checkpoints apart: χ² claims p = 0.32, but every arrangement is as extreme (p = 1).
+    one = cochran_q(np.array([[1, 0], [1, 1], [0, 0]]))
+    assert one["p_chi2"] == pytest.approx(0.3173, abs=1e-3) and one["p"] == 1.0
+    # Ten placements all solved by checkpoint A only: a difference no shuffle reaches (p ≈ 2 · 2^-10).
+    strong = cochran_q(np.array([[1, 0]] * 10 + [[1, 1]] * 5))
+    assert strong["p"] < 0.01 and strong["informative_episodes"] == 10
     with pytest.raises(ValueError, match="≥ 2 checkpoints"):
         cochran_q(np.ones((4, 1)))
+
+
+def test_checkpoint_eval_reuses_only_evaluations_of_the_same_training_on_the_same_seeds():
+    from lerobot_focal.benchmarks.grid.diagnostics.checkpoint_eval import _cached
+
+    entry = {"run_finished_at": "2026-12-06T08:00:00",
+             "episodes": {"15000": {"1": 1.0, "2": 0.0}, "16250": {"1": 1.0, "3": 0.0}}}
+    assert _cached(entry, "2026-12-06T08:00:00", [1, 2]) == {15000: {1: 1.0, 2: 0.0}}  # 16250: other seeds
+    assert _cached(entry, "2026-12-07T09:00:00", [1, 2]) == {}  # the run was trained again since
+    assert _cached(None, "2026-12-06T08:00:00", [1, 2]) == {}
 
 
 def test_checkpoint_summary_pairs_episodes_by_seed_and_refuses_other_episodes():
@@ -563,7 +582,7 @@ def test_checkpoint_summary_pairs_episodes_by_seed_and_refuses_other_episodes():
     md = render({"disassemble|focal|0": entry})
     assert "## disassemble · focal · 0" in md and "| same 4 episodes, % | 25 | 75 |" in md
     assert "| periodic evaluation (20 own episodes), % | 90 | 35 |" in md and "Cochran's Q" in md
-    with pytest.raises(ValueError, match="other episodes than the final one"):
+    with pytest.raises(ValueError, match="other seeds than the final checkpoint"):
         summarize({15: {1: 1.0}, 20: {2: 1.0}}, {}, periodic_episodes=20)
 
 
@@ -574,6 +593,7 @@ def test_a_goal_met_on_the_mean_says_whether_its_interval_shows_it():
     assert _verdict({"mean": 0.2, "lo": 0.05, "hi": 0.35}) == "**met**"
     assert _verdict({"mean": 0.2, "lo": -0.2, "hi": 0.6}).endswith("(the interval still includes 0: not yet shown)")
     assert _verdict({"mean": 0.1, "lo": nan, "hi": nan}) == "**met** on the mean (one pair: no interval yet)"
+    assert _verdict({"mean": -0.1, "lo": nan, "hi": nan}) == "**MISSED** on the mean (one pair: no interval yet)"
     assert _verdict({"mean": -0.1, "lo": -0.3, "hi": 0.1}) == "**MISSED** (the interval still includes 0)"
     assert _verdict({"mean": -0.1, "lo": -0.2, "hi": -0.05}) == "**MISSED**"
 
@@ -585,7 +605,22 @@ def test_the_average_goal_says_it_is_not_measured_until_a_seed_has_every_task():
     records = [RunRecord(**_record(t, "focal", 0, 0.9, 0.8, "fresh")) for t in ("pick-place", "sweep-into")]
     tasks = ["pick-place", "sweep-into", "disassemble"]
     goals = "\n".join(_goals(records, tasks, ["focal"], {"focal": "FocalPolicy"}))
-    assert "focal's average ≥ the paper's (76.0): not measured yet" in goals and "focal has 2 of 3 tasks" in goals
+    assert "focal's average ≥ the paper's (76.0): not measured yet" in goals
+    assert "focal has at most 2 of 3 tasks on a seed" in goals
     records.append(RunRecord(**_record("disassemble", "focal", 0, 0.9, 0.8, "fresh")))
     assert "focal's average ≥ the paper's (76.0): 90.0 → **met**" in "\n".join(
         _goals(records, tasks, ["focal"], {"focal": "FocalPolicy"}))
+
+
+def test_keep_checkpoints_from_must_name_a_step_before_the_last(tmp_path):
+    from lerobot_focal.benchmarks.grid.driver import build_specs, parse_args
+
+    def specs(step: str):
+        return build_specs(parse_args(["--preset", "cpu_fair", "--tasks", "disassemble", "--methods", "focal",
+                                       "--seeds", "0", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
+                                       "--keep-checkpoints-from", step]))[0]
+
+    assert [s.keep_checkpoints_from for s in specs("15000")] == [15000]
+    for bad in ("0", "20000"):  # keeps every checkpoint (gigabytes on the paper preset) / none
+        with pytest.raises(SystemExit, match="give a step between 1 and the last step, 20000"):
+            specs(bad)

@@ -78,7 +78,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="override the preset's U-Net widths, e.g. 64,128,256 (every method)")
     p.add_argument("--keep-checkpoints-from", dest="keep_checkpoints_from", type=int, default=None, metavar="STEP",
                    help="keep every step checkpoint from STEP on, not only the last (for `lerobot-focal-bench "
-                        "checkpoint-eval`; changes no result, so it is not recorded in grid.json)")
+                        "checkpoint-eval`; changes no result, so it is not recorded in grid.json). Give it when a "
+                        "run starts: a run resumed with it has already dropped its earlier checkpoints")
     return p.parse_args(argv)
 
 
@@ -129,6 +130,9 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     work = (args.work or Path("outputs/bench")).resolve()
     specs = make_specs(preset, tasks, [[m.name for m in p] for p in phases], seeds, work)
     if args.keep_checkpoints_from is not None:
+        if not 0 < args.keep_checkpoints_from < max(s.preset.steps for s in specs):
+            raise SystemExit(f"--keep-checkpoints-from {args.keep_checkpoints_from}: give a step between 1 and the "
+                             f"last step, {max(s.preset.steps for s in specs)} (that one is always kept)")
         specs = [replace(s, keep_checkpoints_from=args.keep_checkpoints_from) for s in specs]
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
                    "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],

@@ -44,25 +44,40 @@ def read_episodes(path: Path) -> dict[int, float]:
     return {int(e["seed"]): float(e["success"]) for e in eps if e.get("seed") is not None}
 
 
-def cochran_q(outcomes: np.ndarray) -> dict:
+#: Random row-wise permutations behind Cochran's Q's p-value (seeded: the same outcomes give the same p).
+PERMUTATIONS = 20_000
+
+
+def cochran_q(outcomes: np.ndarray, permutations: int = PERMUTATIONS) -> dict:
     """Cochran's Q for k related binary samples: rows are episodes (placements), columns checkpoints.
 
-    Under H0 every checkpoint succeeds with the same probability on each placement; Q is then ~ χ²(k − 1).
-    Episodes every checkpoint solved, or none did, carry no information and drop out of the statistic."""
+    Under H0 every checkpoint succeeds with the same probability on each placement, so within a row the outcomes
+    are exchangeable. ``p`` is that permutation test's (each row's outcomes shuffled among the checkpoints; exact
+    in the limit), because with 50 episodes only a handful may tell the checkpoints apart, where the χ²(k − 1)
+    approximation (``p_chi2``, beside it) is too small. Episodes every checkpoint solved, or none did, carry no
+    information and drop out of the statistic."""
     from scipy import stats
 
     x = np.asarray(outcomes, dtype=np.float64)
     n, k = x.shape
     if k < 2 or n == 0:
         raise ValueError(f"Cochran's Q needs ≥ 2 checkpoints and ≥ 1 episode, got {k} and {n}")
-    col, row = x.sum(axis=0), x.sum(axis=1)
-    total = row.sum()
-    denominator = k * total - (row ** 2).sum()
-    if denominator == 0:  # every episode all-or-nothing across checkpoints: no evidence of any difference
-        return {"q": 0.0, "df": k - 1, "p": 1.0, "informative_episodes": 0}
-    q = (k - 1) * (k * (col ** 2).sum() - total ** 2) / denominator
-    return {"q": float(q), "df": k - 1, "p": float(stats.chi2.sf(q, k - 1)),
-            "informative_episodes": int(((row > 0) & (row < k)).sum())}
+    row = x.sum(axis=1)
+    informative = x[(row > 0) & (row < k)]
+    if len(informative) == 0:  # every episode all-or-nothing across checkpoints: no evidence of any difference
+        return {"q": 0.0, "df": k - 1, "p": 1.0, "p_chi2": 1.0, "informative_episodes": 0}
+
+    def q_of(y: np.ndarray) -> np.ndarray:  # y: (..., rows, k); rows' totals are fixed under the permutations
+        col, r = y.sum(axis=-2), y.sum(axis=-1)
+        total = r.sum(axis=-1)
+        return (k - 1) * (k * (col ** 2).sum(axis=-1) - total ** 2) / (k * total - (r ** 2).sum(axis=-1))
+
+    q = float(q_of(informative))
+    rng = np.random.default_rng(0)
+    shuffled = rng.permuted(np.broadcast_to(informative, (permutations, *informative.shape)), axis=-1)
+    p_perm = (1 + int((q_of(shuffled) >= q - 1e-9).sum())) / (permutations + 1)
+    return {"q": q, "df": k - 1, "p": float(p_perm), "p_chi2": float(stats.chi2.sf(q, k - 1)),
+            "informative_episodes": len(informative)}
 
 
 def evaluate_checkpoint(spec: RunSpec, step: int, checkpoint: Path) -> dict[int, float]:
@@ -75,25 +90,45 @@ def evaluate_checkpoint(spec: RunSpec, step: int, checkpoint: Path) -> dict[int,
     return read_episodes(path)
 
 
-def measure_run(spec: RunSpec, curve: list[dict], entry: dict | None) -> dict:
-    """Evaluate the run's kept checkpoints not yet in ``entry``; the final one is the grid's own evaluation."""
+def _cached(entry: dict | None, finished_at: str | None, seeds: list[int]) -> dict[int, dict[int, float]]:
+    """Earlier evaluations of this very run (the same training, by its record's ``finished_at``) on the final
+    evaluation's seeds; anything else is dropped and evaluated again."""
+    if not entry or entry.get("run_finished_at") != finished_at:
+        return {}
+    by_step = {int(k): {int(s): v for s, v in eps.items()} for k, eps in entry.get("episodes", {}).items()}
+    return {step: eps for step, eps in by_step.items() if sorted(eps) == seeds}
+
+
+def measure_run(spec: RunSpec, record, entry: dict | None, save) -> dict:
+    """Evaluate the run's kept checkpoints not yet in ``entry``; the final one is the grid's own evaluation.
+
+    ``save(partial)`` is called after each checkpoint, so an interrupted pass keeps what it evaluated."""
     final_path = spec.run_dir / "final_episodes.jsonl"
     if not final_path.exists():
         raise FileNotFoundError(f"{final_path} is missing: the grid's final evaluation of {spec.key} is gone (its "
                                 "work folder was cleaned?); checkpoint-eval compares against those very episodes")
-    by_step = {int(k): {int(s): v for s, v in eps.items()} for k, eps in (entry or {}).get("episodes", {}).items()}
-    by_step[spec.preset.steps] = read_episodes(final_path)
+    final = read_episodes(final_path)
+    by_step = _cached(entry, record.finished_at, sorted(final))
+    by_step[spec.preset.steps] = final
     kept = {s: p for s, p in checkpoints(spec.run_dir).items() if s < spec.preset.steps}
     if not kept and len(by_step) < 2:
         raise FileNotFoundError(
-            f"{spec.key} kept no step checkpoint before its last: rerun it with `lerobot-focal-bench grid ... "
-            f"--keep-checkpoints-from STEP` (delete its line from results.jsonl first) to compare late checkpoints")
+            f"{spec.key} kept no step checkpoint before its last: delete its line from results.jsonl and its run "
+            f"folder {spec.run_dir}, then train it again with `lerobot-focal-bench grid ... --keep-checkpoints-from "
+            "STEP` to compare late checkpoints")
+    periodic = {c["step"]: c["success"] for c in record.curve}
     for step, path in sorted(kept.items()):
         if step not in by_step:
             by_step[step] = evaluate_checkpoint(spec, step, path)
             print(f"[checkpoint-eval] {spec.key} step {step}: {100 * np.mean(list(by_step[step].values())):.0f} % "
                   f"on {len(by_step[step])} episodes", flush=True)
-    return summarize(by_step, {c["step"]: c["success"] for c in curve}, spec.preset.eval_episodes)
+            save({"run_finished_at": record.finished_at, "episodes": _episodes_json(by_step)})
+    return {"run_finished_at": record.finished_at,
+            **summarize(by_step, periodic, spec.preset.eval_episodes)}
+
+
+def _episodes_json(by_step: dict[int, dict[int, float]]) -> dict:
+    return {str(s): {str(seed): v for seed, v in eps.items()} for s, eps in sorted(by_step.items())}
 
 
 def summarize(by_step: dict[int, dict[int, float]], periodic: dict[int, float], periodic_episodes: int) -> dict:
@@ -103,8 +138,8 @@ def summarize(by_step: dict[int, dict[int, float]], periodic: dict[int, float], 
     seeds = sorted(by_step[steps[-1]])
     for step in steps:
         if sorted(by_step[step]) != seeds:
-            raise ValueError(f"checkpoint {step} was evaluated on other episodes than the final one "
-                             f"({len(by_step[step])} vs {len(seeds)} seeds): delete its ckpt{step}_episodes.jsonl")
+            raise ValueError(f"checkpoint {step} was evaluated on other seeds than the final checkpoint: the "
+                             "comparison needs the same episodes for every checkpoint")
     outcomes = np.array([[by_step[s][seed] for s in steps] for seed in seeds])
     shared = outcomes.mean(axis=0)
     p = float(shared.mean())
@@ -118,7 +153,7 @@ def summarize(by_step: dict[int, dict[int, float]], periodic: dict[int, float], 
         "binomial_sd_shared": (p * (1 - p) / len(seeds)) ** 0.5,
         "binomial_sd_periodic": (p * (1 - p) / periodic_episodes) ** 0.5,
         "cochran": cochran_q(outcomes) if len(steps) > 1 else None,
-        "episodes": {str(s): {str(seed): by_step[s][seed] for seed in seeds} for s in steps},
+        "episodes": _episodes_json({s: by_step[s] for s in steps}),
     }
 
 
@@ -128,7 +163,7 @@ def render(done: dict[str, dict]) -> str:
           "grid's final evaluation (same placements, same policy noise), beside the run's periodic evaluation at "
           "that step (its own fresh draw of placements). Cochran's Q: do the checkpoints differ on the shared "
           "placements by more than chance?", ""]
-    for key in sorted(done):
+    for key in sorted(k for k in done if "steps" in done[k]):  # not runs whose pass was interrupted
         e = done[key]
         periodic = [x for x in e["periodic_success"] if x is not None]
         md += [f"## {key.replace('|', ' · ')}", "",
@@ -145,11 +180,12 @@ def render(done: dict[str, dict]) -> str:
                ""]
         c = e.get("cochran")
         if c:
-            verdict = ("the checkpoints differ" if c["p"] < 0.05 else
-                       "no evidence that the checkpoints differ: the swing is the draw of placements")
-            md += [f"Cochran's Q = {c['q']:.2f} on {c['df']} degrees of freedom, p = {c['p']:.3f} "
-                   f"({c['informative_episodes']} of {e['shared_episodes']} episodes told the checkpoints apart): "
-                   f"{verdict}.", ""]
+            verdict = ("the checkpoints act differently on the same placements" if c["p"] < 0.05 else
+                       f"no evidence on these {e['shared_episodes']} episodes that the checkpoints differ (a "
+                       "difference smaller than these episodes resolve is not ruled out)")
+            md += [f"Cochran's Q = {c['q']:.2f} on {c['df']} degrees of freedom, p = {c['p']:.3f} (permutation "
+                   f"test; χ² approximation {c.get('p_chi2', c['p']):.3f}); {c['informative_episodes']} of "
+                   f"{e['shared_episodes']} episodes told the checkpoints apart: {verdict}.", ""]
     return "\n".join(md)
 
 
@@ -159,7 +195,7 @@ def plot(done: dict[str, dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = sorted(done)
+    keys = sorted(k for k in done if "steps" in done[k])
     fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.6), squeeze=False)
     for ax, key in zip(axes[0], keys, strict=True):
         e = done[key]
@@ -195,20 +231,23 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     specs = specs_of_grid(args.out, args.work)
     failed = []
+
+    def save(key: str, entry: dict) -> None:
+        done[key] = entry
+        done_path.write_text(json.dumps(done, indent=1))
+
     for r in records:
         spec = specs.get(r.key)
         if spec is None:
             continue
         try:
-            done[r.key] = measure_run(spec, r.curve, done.get(r.key))
+            save(r.key, measure_run(spec, r, done.get(r.key), lambda partial, key=r.key: save(key, partial)))
         except FileNotFoundError as err:
-            if r.key not in done:
+            if "steps" not in done.get(r.key, {}):
                 failed.append(str(err))
-            continue
-        done_path.write_text(json.dumps(done, indent=1))
     for message in failed:
         print(f"[checkpoint-eval] skipped: {message}")
-    if not done:
+    if not any("steps" in e for e in done.values()):
         return 2
     (args.out / f"{TOOL}.md").write_text(render(done))
     plot(done, args.out / f"{TOOL}.png")
