@@ -134,7 +134,8 @@ def render(result: dict) -> str:
     times = "three times" if NO_DROPOUT in result["rows"] else "twice"
     md = [f"# ACT in float32 and under bf16 autocast on a CPU (the grid's ACT, batch {result['batch']}, "
           f"{'one thread' if threads == 1 else f'{threads} threads'})",
-          "", f"`lerobot-focal-bench act-precision --data {result['data']}`: LeRobot's ACT with the {result['preset']} "
+          "", f"`lerobot-focal-bench act-precision --data {result['data']}{_options(result)}`: LeRobot's ACT with the "
+          f"{result['preset']} "
           f"grid's settings (chunk {result['chunk']}, width {result['width'][0]}/{result['width'][1]}, lr "
           f"{result['lr']:g}), trained {result['steps']} steps {times} from the same weights on the same batches and "
           "noise. Step time: median over the steps; loss: mean of the last fifth ([curves](act_precision.png)).", "",
@@ -151,6 +152,14 @@ def render(result: dict) -> str:
            f"The curves differ by {diff:+.1%} (more than {AGREEMENT:.0%}): bf16 autocast trains another ACT, so the "
            "grid keeps ACT in float32, its authors' precision, and pays its step time."]
     return "\n".join(md) + "\n"
+
+
+def _options(result: dict) -> str:
+    """The command-line options that made ``result`` beyond --data (the defaults left out)."""
+    options = [f"--steps {result['steps']}"] if result["steps"] != 300 else []
+    options += [f"--threads {result['threads']}"] if result.get("threads", 1) != 1 else []
+    options += ["--dropout-cost"] if NO_DROPOUT in result["rows"] else []
+    return "".join(f" {o}" for o in options)
 
 
 def _plot(path: Path, curves: dict[str, list[float]]) -> None:

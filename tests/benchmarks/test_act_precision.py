@@ -49,5 +49,6 @@ def test_act_precision_times_dropout_and_threads_when_asked(tmp_path):
     assert result["rows"]["float32, dropout 0"]["ms_per_step"] > 0
     md = (tmp_path / "out" / "act_precision.md").read_text()
     assert "2 threads" in md and "of ACT's float32 step is its dropout" in md
+    assert "--steps 3 --threads 2 --dropout-cost`" in md  # the table names the command that made it
     with pytest.raises(SystemExit):
         main(["--data", str(root), "--threads", "0"])

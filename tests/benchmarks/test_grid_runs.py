@@ -98,6 +98,7 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     assert tau_profile.main(["--out", str(out), "--work", str(work), "--methods", "wo_las"]) == 2
 
 
+@pytest.mark.slow  # ~2 min: a grid run and three evaluations; the default suite keeps checkpoint-eval's units
 def test_kept_checkpoints_are_evaluated_on_the_final_evaluations_own_episodes(work, tmp_path, capsys):
     """`grid --keep-checkpoints-from 2` keeps step 2's checkpoint; checkpoint-eval scores it on the very
     placements and policy noise of the grid's final evaluation, which an evaluation of the final checkpoint under
