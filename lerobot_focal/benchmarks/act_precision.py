@@ -38,6 +38,8 @@ TARGETS = ("action", "action_is_pad")
 AGREEMENT = 0.01
 
 
+#: Training steps per variant unless --steps says otherwise.
+DEFAULT_STEPS = 300
 #: The timing-only row of ``--dropout-cost``: ACT without its dropout, which trains another ACT.
 NO_DROPOUT = "float32, dropout 0"
 
@@ -156,7 +158,7 @@ def render(result: dict) -> str:
 
 def _options(result: dict) -> str:
     """The command-line options that made ``result`` beyond --data (the defaults left out)."""
-    options = [f"--steps {result['steps']}"] if result["steps"] != 300 else []
+    options = [f"--steps {result['steps']}"] if result["steps"] != DEFAULT_STEPS else []
     options += [f"--threads {result['threads']}"] if result.get("threads", 1) != 1 else []
     options += ["--dropout-cost"] if NO_DROPOUT in result["rows"] else []
     return "".join(f" {o}" for o in options)
@@ -187,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, required=True, help="a grid dataset (state + object poses) root")
     parser.add_argument("--repo-id", default="local/demos", help="its repo id (any name for a local dataset)")
     parser.add_argument("--preset", default="cpu_fair", help="the grid preset whose ACT settings to use")
-    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--steps", type=int, default=DEFAULT_STEPS)
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--threads", type=int, default=1, help="torch threads for the steps (default 1)")
     parser.add_argument("--dropout-cost", action="store_true",

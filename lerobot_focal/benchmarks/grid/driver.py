@@ -130,9 +130,10 @@ def build_specs(args: argparse.Namespace) -> tuple[list[RunSpec], dict]:
     work = (args.work or Path("outputs/bench")).resolve()
     specs = make_specs(preset, tasks, [[m.name for m in p] for p in phases], seeds, work)
     if args.keep_checkpoints_from is not None:
-        if not 0 < args.keep_checkpoints_from < max(s.preset.steps for s in specs):
+        last = max(s.preset.steps for s in specs)
+        if not 0 < args.keep_checkpoints_from < last:
             raise SystemExit(f"--keep-checkpoints-from {args.keep_checkpoints_from}: give a step between 1 and the "
-                             f"last step, {max(s.preset.steps for s in specs)} (that one is always kept)")
+                             f"last step, {last} (that one is always kept)")
         specs = [replace(s, keep_checkpoints_from=args.keep_checkpoints_from) for s in specs]
     return specs, {"preset": preset.to_dict(), "overrides": overrides, "tasks": tasks,
                    "methods": [m.name for m in methods], "phases": [[m.name for m in p] for p in phases],

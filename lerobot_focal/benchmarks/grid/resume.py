@@ -84,9 +84,15 @@ def _episode_lines(path: Path) -> list[tuple[str, dict]]:
     return out
 
 
+def seeded_records(path: Path) -> list[dict]:
+    """An evaluation's episode records (the env's ``metrics_path`` file), autoreset episodes, which carry no
+    seed, left out."""
+    return [rec for _, rec in _episode_lines(path) if rec.get("seed") is not None]
+
+
 def seeded_episodes(run_dir: Path) -> list[dict]:
-    """The run's periodic-evaluation episodes so far (autoreset episodes, which carry no seed, left out)."""
-    return [rec for _, rec in _episode_lines(run_dir / EPISODES_FILE) if rec.get("seed") is not None]
+    """The run's periodic-evaluation episodes so far."""
+    return seeded_records(run_dir / EPISODES_FILE)
 
 
 @dataclass(frozen=True)

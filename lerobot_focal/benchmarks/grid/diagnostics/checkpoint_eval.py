@@ -30,7 +30,7 @@ import numpy as np
 
 from ....console import doc_parser
 from ..processes import run_logged
-from ..resume import checkpoints
+from ..resume import checkpoints, seeded_records
 from ..revisit import add_run_filters, finished_runs, no_runs_message
 from ..run import child_env, final_eval_command
 from ..specs import RunSpec, specs_of_grid
@@ -39,9 +39,8 @@ TOOL = "checkpoint_eval"
 
 
 def read_episodes(path: Path) -> dict[int, float]:
-    """Success by reset seed of an evaluation's episode file (the env's per-episode records)."""
-    eps = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
-    return {int(e["seed"]): float(e["success"]) for e in eps if e.get("seed") is not None}
+    """Success by reset seed of an evaluation's episode file."""
+    return {int(e["seed"]): float(e["success"]) for e in seeded_records(path)}
 
 
 #: Random row-wise permutations behind Cochran's Q's p-value (seeded: the same outcomes give the same p).
@@ -195,6 +194,8 @@ def plot(done: dict[str, dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ....figures import save_png
+
     keys = sorted(k for k in done if "steps" in done[k])
     fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.6), squeeze=False)
     for ax, key in zip(axes[0], keys, strict=True):
@@ -214,9 +215,7 @@ def plot(done: dict[str, dict], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success, %")
     axes[0][0].legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def main(argv: list[str] | None = None) -> int:
