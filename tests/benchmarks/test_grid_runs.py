@@ -72,8 +72,13 @@ def test_local_grid_runs_reports_and_resumes(work, tmp_path, capsys):
     split = gap["placement"]  # each start against the demos' range of observation.environment_state
     assert split["inside"][1] + split["outside"][1] == 2
     assert split["inside"][0] + split["outside"][0] == gap["successes"]
+    dither = gap["dither"]  # focal re-plans every n_action_steps; each present row has the four dimensions
+    assert dither["replan_every"] >= 1 and (dither["success"] or dither["failure"])
+    assert all(len(v) == 4 and all(0.0 <= x <= 2.0 for x in v)
+               for name in ("success", "failure") for v in dither[name].values())
     md = (out / "expert_gap.md").read_text()
     assert (out / "expert_gap.png").stat().st_size > 5000 and "reach · focal · 0" in md and "| reach · focal | " in md
+    assert "## Dither" in md and f"| reach · focal · 0 | {dither['replan_every']} |" in md
     capsys.readouterr()
     assert expert_gap.main(["--out", str(out), "--work", str(work), "--episodes", "2"]) == 0
     assert "reach|focal|0:" not in capsys.readouterr().out  # measured already: skipped, no progress line

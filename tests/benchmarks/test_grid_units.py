@@ -277,6 +277,31 @@ def test_expert_gap_windows_weigh_episodes_equally_and_stop_at_each_episode_end(
         (0, 2, 1.25), (25, 2, 1.5), (50, 2, 1.5)]
 
 
+def test_expert_gap_dither_splits_changes_at_replans_from_those_inside_chunks():
+    from lerobot_focal.benchmarks.grid.diagnostics.expert_gap import dither
+
+    steps, k = 12, 4
+    # Episode 0 (success, ends at step 7): constant inside each chunk, +1 on x at every new chunk.
+    jumps = np.zeros((steps, 4))
+    jumps[:, 0] = np.arange(steps) // k
+    # Episode 1 (failure, all 12 steps): alternates ±0.5 on y every step, re-plans included.
+    zigzag = np.zeros((steps, 4))
+    zigzag[:, 1] = 0.5 * (-1.0) ** np.arange(steps)
+    actions = np.stack([jumps, zigzag])
+    expert = np.zeros_like(actions)
+    expert[1, :, 2] = 0.1 * np.arange(steps)  # the expert drifts on z along the failure's states
+    out = dither(actions, expert, last=np.array([7, 11]), success=np.array([True, False]), replan_every=k)
+    assert out["replan_every"] == k
+    # The success: changes into steps 1..7, of which step 4 is a re-plan; step 8 lies after its end.
+    assert out["success"]["replan"] == [1.0, 0.0, 0.0, 0.0]
+    assert out["success"]["within"] == [0.0, 0.0, 0.0, 0.0]
+    assert out["failure"]["replan"] == out["failure"]["within"] == [0.0, 1.0, 0.0, 0.0]
+    assert out["failure"]["expert"] == [0.0, 0.0, 0.1, 0.0]
+    # Only the failure: no success rows at all.
+    none_succeed = dither(actions[1:], expert[1:], last=np.array([11]), success=np.array([False]), replan_every=k)
+    assert none_succeed["success"] == {}
+
+
 def test_expert_gap_splits_episodes_by_placement_inside_the_demos_range():
     from lerobot_focal.benchmarks.grid.diagnostics.expert_gap import placement_split
 

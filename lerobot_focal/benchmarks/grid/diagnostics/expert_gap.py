@@ -14,7 +14,12 @@ recorded the demos what it would do there. Per run:
   failures apart: where along the episode the policy leaves the demonstrated behaviour;
 * success of the episodes whose placement (object and goal positions at reset) lies inside the range the demos
   cover in every coordinate, against those outside it in at least one: the range the min-max normaliser was fit
-  on, so "outside" is an input the network never saw in [−1, 1].
+  on, so "outside" is an input the network never saw in [−1, 1];
+* dither: the mean |a_{t+1} − a_t| per dimension (the paper's ATV, per dimension), successes and failures apart,
+  split into the steps where a new chunk starts (a re-plan) and the steps inside a chunk, beside the expert's
+  own change along the same states. A policy that jitters only at re-plans switches between sampled modes from
+  one chunk to the next; one that jitters inside its chunks predicts jagged chunks; an expert that changes as
+  much says the states themselves call for it.
 
 The expert's answers at states the demos never visited (the policy's own mistakes) are DAgger's labels, not what
 the policy was trained on: a gap that opens after a missed grasp and stays says the demos hold no recovery to
@@ -59,6 +64,7 @@ def measure(
     from ..analyze import load_policy
 
     policy, pre, post = load_policy(checkpoint)
+    replan_every = int(policy.config.n_action_steps)  # LeRobot's action queue: a chunk every n_action_steps
     env_cfg = TrainPipelineConfig.from_pretrained(checkpoint).env
     if env_cfg is None or env_cfg.type != "focal_metaworld":
         raise SystemExit(f"expert_gap: {checkpoint} was not trained with a focal_metaworld env (the only one with a "
@@ -85,11 +91,13 @@ def measure(
         vec.close()
     actions = np.clip(out["action"].numpy(), -1.0, 1.0)  # MetaWorld clips what it is given; the expert too
     steps = actions.shape[1]
-    gap = np.abs(actions - np.stack(expert[:steps], axis=1))  # (B, T, 4)
+    expert_actions = np.clip(np.stack(expert[:steps], axis=1), -1.0, 1.0)  # (B, T, 4)
+    gap = np.abs(actions - expert_actions)
     last = out["done"].int().argmax(dim=1).numpy()  # LeRobot's own "valid steps" rule: up to the first done
     success = out["success"].any(dim=1).numpy()
     held = np.stack(grasped[1:steps + 1], axis=1)
     out = summarise(gap, last, success, np.array([held[b, : last[b] + 1].any() for b in range(len(last))]))
+    out["dither"] = dither(actions, expert_actions, last, success, replan_every)
     if demo_stats is not None and demo_stats.exists():
         stats = json.loads(demo_stats.read_text()).get("observation.environment_state")
         if stats is not None:
@@ -126,6 +134,27 @@ def summarise(gap: np.ndarray, last: np.ndarray, success: np.ndarray, ever_grasp
             "successes_never_grasped": int((success & ~ever_grasped).sum()), "windows": windows}
 
 
+def dither(actions: np.ndarray, expert: np.ndarray, last: np.ndarray, success: np.ndarray,
+           replan_every: int) -> dict:
+    """Mean |a_{t+1} − a_t| per action dimension over each episode's valid steps (episodes weigh equally),
+    successes and failures apart: at the first step of a chunk (t a multiple of ``replan_every``: LeRobot's
+    queue re-plans there), inside chunks, and the expert's actions along the same states."""
+    t = np.arange(1, actions.shape[1])  # the change into step t
+    change = {"replan": np.abs(np.diff(actions, axis=1)), "expert": np.abs(np.diff(expert, axis=1))}
+    parts = {"replan": ("replan", t % replan_every == 0), "within": ("replan", t % replan_every != 0),
+             "expert": ("expert", np.ones_like(t, dtype=bool))}
+    out: dict = {"replan_every": replan_every}
+    for name, sel in (("success", success), ("failure", ~success)):
+        rows = {}
+        for part, (source, at) in parts.items():
+            per_episode = [change[source][b, at & (t <= last[b])].mean(axis=0) for b in np.flatnonzero(sel)
+                           if (at & (t <= last[b])).any()]
+            if per_episode:
+                rows[part] = [round(float(x), 4) for x in np.mean(per_episode, axis=0)]
+        out[name] = rows
+    return out
+
+
 def render(done: dict[str, dict]) -> str:
     md = ["# Where failures leave the expert (on-policy disagreement)", "",
           "`lerobot-focal-bench expert-gap --out <grid>`: each run's final checkpoint rolled out "
@@ -141,6 +170,7 @@ def render(done: dict[str, dict]) -> str:
                  for a, b in (v.get(k, (None, None)) for k in ("success", "never_held", "inside", "outside"))]
         md.append(f"| {run} | " + " | ".join(cells) + " |")
     md.append("")
+    md += _dither_table(done)
     for key in sorted(done):
         r = done[key]
         failures = r["episodes"] - r["successes"]
@@ -164,6 +194,23 @@ def render(done: dict[str, dict]) -> str:
             md.append(f"| {start}-{start + WINDOW - 1} | {cells[0]} | {cells[1]} |")
         md.append("")
     return "\n".join(md)
+
+
+def _dither_table(done: dict[str, dict]) -> list[str]:
+    runs = {key: r["dither"] for key, r in sorted(done.items()) if "dither" in r}
+    if not runs:
+        return []
+    md = ["## Dither: mean |a(t+1) − a(t)| per dimension (" + " · ".join(DIMS) + ")", "",
+          "Each episode over its own steps; *at re-plan*: the first action of a new chunk against the last of the "
+          "previous one; *inside chunks*: the other steps; *expert*: the scripted expert's actions along the same "
+          "states (how much the states themselves call for).", "",
+          "| run | re-plan every | successes: at re-plan | inside chunks | expert | failures: at re-plan | "
+          "inside chunks | expert |", "|---|---|---|---|---|---|---|---|"]
+    for key, d in runs.items():
+        cells = [" · ".join(f"{x:.2f}" for x in d[name][part]) if part in d[name] else "–"
+                 for name in ("success", "failure") for part in ("replan", "within", "expert")]
+        md.append(f"| {key.replace('|', ' · ')} | {d['replan_every']} | " + " | ".join(cells) + " |")
+    return [*md, ""]
 
 
 def _placement_text(split: dict | None) -> str:
@@ -246,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         return measure(checkpoint_of(spec.run_dir), args.episodes, EXPERT_GAP_SEED + 1000 * spec.seed,
                        spec.run_dir / "expert_gap_episodes.jsonl", spec.data.train_root / "meta" / "stats.json")
 
+    # Entries measured before the dither summary existed keep their numbers (their checkpoints may be gone).
     done = measure_runs("expert_gap", args, measure_run, lambda e: e.get("episodes") == args.episodes,
                         lambda key, e: f"{key}: {e['successes']} / {args.episodes} succeed, "
                                        f"{e['failures_never_grasped']} failures never held the object")
