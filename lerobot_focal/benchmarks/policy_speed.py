@@ -1,4 +1,4 @@
-"""Inference latency and training-step cost of `focal` against its own U-Net and LeRobot's `diffusion`.
+"""Inference latency and training-step cost of `focal` against its own U-Net, LeRobot's `diffusion` and `act`.
 
     lerobot-focal-bench speed                       # CPU preset and paper size, on the machine it runs on
     lerobot-focal-bench speed --sizes cpu --device cuda
@@ -9,6 +9,9 @@ observation (state 9-d + environment state 39-d, the only kind both policies tak
 - `focal` `predict_action_chunk` (obs encoder + one U-Net evaluation, batch 1) against one bare forward of the
   same U-Net with a precomputed condition — the overhead of the policy around the network (goal ≤ 1.1×);
 - LeRobot's `diffusion` `generate_actions` with DDIM 10 and DDPM 100 steps at the same U-Net size;
+- LeRobot's `act` `predict_action_chunk` (one transformer pass for a 50-action chunk, the grid's chunk) on the same
+  observation, timed in the same round-robin as focal's chunk so their ratio holds on a loaded machine; its width
+  is the grid's for the CPU sizes (128 / 800) and ACT's default (512 / 3200) at paper size;
 - one training step (forward, backward, AdamW step, EMA update) of `focal` against a plain flow-matching step
   of the same network (goal ≤ 1.6×): focal pays one extra no-grad evaluation of the EMA target.
 Timings are medians over repeats measured in the same process; ratios are what to compare across machines.
@@ -28,7 +31,11 @@ from torch import Tensor
 
 from lerobot_focal.figures import save_png
 
-SIZES = {"cpu": (64, 128, 256), "paper": (512, 1024, 2048)}
+#: U-Net down_dims per size: ``grid`` is the CPU grid presets' (cpu_plateau, cpu_fair), ``cpu`` the CPU training
+#: preset's, ``paper`` the paper's.
+SIZES = {"grid": (32, 64, 128), "cpu": (64, 128, 256), "paper": (512, 1024, 2048)}
+#: ACT's (dim_model, dim_feedforward) beside each U-Net size: the CPU grid presets' act_width, ACT's defaults.
+ACT_WIDTH = {"grid": (128, 800), "cpu": (128, 800), "paper": (512, 3200)}
 STATE_DIM, ENV_DIM, ACTION_DIM = 9, 39, 4
 
 
@@ -107,6 +114,19 @@ def build_diffusion(down_dims, device: str, scheduler: str, steps: int):
     return DiffusionPolicy(cfg).to(device)
 
 
+def build_act(width: tuple[int, int], device: str):
+    """LeRobot's ACT as the grid builds it (chunk 50 executed whole, ``width`` = dim_model / dim_feedforward)."""
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK
+
+    inputs, outputs = benchmark_features()
+    cfg = ACTConfig(device=device, chunk_size=ACT_CHUNK, n_action_steps=ACT_CHUNK, dim_model=width[0],
+                    dim_feedforward=width[1], input_features=inputs, output_features=outputs)
+    return ACTPolicy(cfg).to(device)
+
+
 def _obs(batch: int, device: str) -> dict[str, Tensor]:
     return {
         "observation.state": torch.randn(batch, 2, STATE_DIM, device=device),
@@ -114,18 +134,21 @@ def _obs(batch: int, device: str) -> dict[str, Tensor]:
     }
 
 
-def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor]) -> tuple[float, float, float]:
-    """(U-Net parameters in millions, bare U-Net forward ms, focal chunk ms); the model is freed on return."""
+def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor], act=None) -> tuple[float, dict]:
+    """(U-Net parameters in millions, median ms of ``bare`` U-Net forward, focal ``chunk`` and, given an ACT
+    policy, its ``act`` chunk, all in one round-robin); the models are freed on return."""
     focal = build_focal(down_dims, device).eval()
     params = sum(p.numel() for p in focal.model.velocity_net.parameters()) / 1e6
     net = focal.ema_model
     cond = net.encode(obs)
     x = torch.randn(1, focal.config.horizon, ACTION_DIM, device=device)
     t = torch.full((1,), 0.01, device=device)
+    fns = {"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs)}
+    if act is not None:
+        latest = {k: v[:, -1] for k, v in obs.items()}  # ACT reads one observation step
+        fns["act"] = lambda: act.predict_action_chunk(latest)
     with torch.no_grad():
-        ms = time_ms({"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs)},
-                     device, repeats)
-    return params, ms["bare"], ms["chunk"]
+        return params, time_ms(fns, device, repeats)
 
 
 def _diffusion_ms(down_dims, device: str, sched: str, steps: int, repeats: int, obs: dict[str, Tensor]) -> float:
@@ -138,11 +161,18 @@ def _diffusion_ms(down_dims, device: str, sched: str, steps: int, repeats: int, 
 def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
     down_dims = SIZES[size]
     obs = _obs(1, device)
-    params, bare, chunk = _focal_ms(down_dims, device, repeats, obs)
+    act = build_act(ACT_WIDTH[size], device).eval()
+    act_params = sum(p.numel() for p in act.parameters()) / 1e6
+    params, ms = _focal_ms(down_dims, device, repeats, obs, act)
+    chunk = ms["chunk"]
     rows = [
-        Row(size, params, "bare U-Net forward", bare),
-        Row(size, params, "focal predict_action_chunk (1 NFE)", chunk, chunk / bare, "bare"),
+        Row(size, params, "bare U-Net forward", ms["bare"]),
+        Row(size, params, "focal predict_action_chunk (1 NFE)", chunk, chunk / ms["bare"], "bare"),
+        Row(size, act_params, f"ACT predict_action_chunk ({act.config.chunk_size} actions, width "
+                              f"{act.config.dim_model}/{act.config.dim_feedforward})", ms["act"],
+            ms["act"] / chunk, "focal"),
     ]
+    del act
     variants = [("DDIM", 10)] + ([("DDPM", 100)] if ddpm else [])
     for sched, steps in variants:
         ms = _diffusion_ms(down_dims, device, sched, steps, max(3, repeats // (4 if steps > 10 else 1)), obs)
