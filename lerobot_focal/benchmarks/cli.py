@@ -60,12 +60,14 @@ _DELEGATED = {
 def main(argv: list[str] | None = None) -> int:
     parser = doc_parser(__doc__, "lerobot-focal-bench")
     sub = parser.add_subparsers(dest="command", required=True)
-    speed = sub.add_parser("speed", help="inference latency and train-step cost: focal vs bare U-Net vs diffusion vs ACT")
+    speed = sub.add_parser("speed",
+                           help="inference latency and train-step cost: focal vs bare U-Net vs diffusion vs ACT")
     speed.add_argument("--sizes", nargs="+", choices=["grid", "cpu", "paper"], default=["cpu", "paper"],
                        help="U-Net sizes: grid 32/64/128 (the CPU grid presets), cpu 64/128/256, paper 512/1024/2048")
     speed.add_argument("--device", default="cuda" if _cuda() else "cpu")
     speed.add_argument("--repeats", type=int, default=7)
-    speed.add_argument("--cpu-train-batch", type=int, default=64, help="train batch for the grid- and CPU-preset networks")
+    speed.add_argument("--cpu-train-batch", type=int, default=64,
+                       help="train batch for the grid- and CPU-preset networks")
     speed.add_argument("--paper-train-batch", type=int, default=None,
                        help="train batch for the paper-size network (default: 128 on GPU, 16 on CPU)")
     speed.add_argument("--no-ddpm", action="store_true", help="skip DDPM 100 (≈ 30 s per call at paper size on CPU)")
@@ -127,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
             torch.set_num_threads(args.threads)
 
         paper_batch = args.paper_train_batch or (128 if args.device.startswith("cuda") else 16)
-        run(args.sizes, args.device, args.repeats, {"grid": args.cpu_train_batch, "cpu": args.cpu_train_batch, "paper": paper_batch},
-            not args.no_ddpm, args.out)
+        batches = {"grid": args.cpu_train_batch, "cpu": args.cpu_train_batch, "paper": paper_batch}
+        run(args.sizes, args.device, args.repeats, batches, not args.no_ddpm, args.out)
     return 0
 
 
