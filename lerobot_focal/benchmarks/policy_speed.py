@@ -34,8 +34,6 @@ from lerobot_focal.figures import save_png
 #: U-Net down_dims per size: ``grid`` is the CPU grid presets' (cpu_plateau, cpu_fair), ``cpu`` the CPU training
 #: preset's, ``paper`` the paper's.
 SIZES = {"grid": (32, 64, 128), "cpu": (64, 128, 256), "paper": (512, 1024, 2048)}
-#: ACT's (dim_model, dim_feedforward) beside each U-Net size: the CPU grid presets' act_width, ACT's defaults.
-ACT_WIDTH = {"grid": (128, 800), "cpu": (128, 800), "paper": (512, 3200)}
 STATE_DIM, ENV_DIM, ACTION_DIM = 9, 39, 4
 
 
@@ -114,6 +112,19 @@ def build_diffusion(down_dims, device: str, scheduler: str, steps: int):
     return DiffusionPolicy(cfg).to(device)
 
 
+def act_width(size: str) -> tuple[int, int]:
+    """ACT's (dim_model, dim_feedforward) beside a U-Net size: the CPU grid presets' ``act_width`` for the CPU
+    sizes, ACT's own defaults at paper size (as the grid's paper preset keeps them)."""
+    if size == "paper":
+        from lerobot.policies.act.configuration_act import ACTConfig
+
+        fields = ACTConfig.__dataclass_fields__
+        return fields["dim_model"].default, fields["dim_feedforward"].default
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
+
+    return PRESETS["cpu_fair"].act_width
+
+
 def build_act(width: tuple[int, int], device: str):
     """LeRobot's ACT as the grid builds it (chunk 50 executed whole, ``width`` = dim_model / dim_feedforward)."""
     from lerobot.policies.act.configuration_act import ACTConfig
@@ -161,7 +172,7 @@ def _diffusion_ms(down_dims, device: str, sched: str, steps: int, repeats: int, 
 def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
     down_dims = SIZES[size]
     obs = _obs(1, device)
-    act = build_act(ACT_WIDTH[size], device).eval()
+    act = build_act(act_width(size), device).eval()
     act_params = sum(p.numel() for p in act.parameters()) / 1e6
     params, ms = _focal_ms(down_dims, device, repeats, obs, act)
     chunk = ms["chunk"]
