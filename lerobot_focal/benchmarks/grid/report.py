@@ -482,7 +482,8 @@ def _given_table(methods: list[str], label: dict, preset: dict, agg: dict) -> li
 #: Analyses of a finished grid's runs written beside its report: (file pattern, tool module, what it asks).
 DIAGNOSTICS: tuple[tuple[str, str, str], ...] = (
     ("expert_gap.md", "expert-gap", "Where do the runs fail? Each final checkpoint against MetaWorld's scripted "
-                                    "expert, state by state, and success inside / outside the demos' placements."),
+                                    "expert, state by state, success inside / outside the demos' placements, and "
+                                    "where the actions jitter (at re-plans or inside chunks)."),
     ("tau_profile.md", "tau-profile", "Where along the flow is each focal-family checkpoint's one-step map still "
                                       "wrong, on its demos and on held-out episodes?"),
     ("variant_*.md", "variant-eval", "Would the final checkpoints act better with another inference setting, on "
