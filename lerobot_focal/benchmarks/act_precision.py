@@ -47,24 +47,19 @@ NO_DROPOUT = "float32, dropout 0"
 def _policy_and_batches(root: Path, repo_id: str, preset_name: str, batch: int):
     from lerobot.configs.types import FeatureType
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.policies.act.configuration_act import ACTConfig
     from lerobot.policies.act.modeling_act import ACTPolicy
     from lerobot.policies.factory import make_pre_post_processors
     from lerobot.utils.feature_utils import dataset_to_policy_features
 
     from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
-    from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK
+    from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK, act_config
 
     preset = PRESETS[preset_name]
     probe = LeRobotDataset(repo_id, root=root)
     features = dataset_to_policy_features(probe.meta.features)
-    width = preset.act_width or (512, 3200)
-    config = ACTConfig(
-        input_features={k: f for k, f in features.items() if k in OBSERVATIONS},
-        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
-        chunk_size=ACT_CHUNK, n_action_steps=ACT_CHUNK, dim_model=width[0], dim_feedforward=width[1], device="cpu",
-        optimizer_lr=preset.lr_for("act"),
-    )
+    config = act_config(preset, {k: f for k, f in features.items() if k in OBSERVATIONS},
+                        {k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+                        device="cpu", optimizer_lr=preset.lr_for("act"))
     dataset = LeRobotDataset(repo_id, root=root,
                              delta_timestamps={"action": [i / probe.meta.fps for i in range(ACT_CHUNK)]})
     pre, _ = make_pre_post_processors(config, dataset_stats=dataset.meta.stats)

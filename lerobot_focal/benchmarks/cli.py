@@ -130,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
 
         paper_batch = args.paper_train_batch or (128 if args.device.startswith("cuda") else 16)
         batches = {"grid": args.cpu_train_batch, "cpu": args.cpu_train_batch, "paper": paper_batch}
-        run(args.sizes, args.device, args.repeats, batches, not args.no_ddpm, args.out)
+        run(args.sizes, args.device, args.repeats, batches, not args.no_ddpm, args.out,
+            command=" ".join(["lerobot-focal-bench", *argv]))
     return 0
 
 

@@ -112,30 +112,20 @@ def build_diffusion(down_dims, device: str, scheduler: str, steps: int):
     return DiffusionPolicy(cfg).to(device)
 
 
-def act_width(size: str) -> tuple[int, int]:
-    """ACT's (dim_model, dim_feedforward) beside a U-Net size: the CPU grid presets' ``act_width`` for the CPU
-    sizes, ACT's own defaults at paper size (as the grid's paper preset keeps them)."""
-    if size == "paper":
-        from lerobot.policies.act.configuration_act import ACTConfig
-
-        fields = ACTConfig.__dataclass_fields__
-        return fields["dim_model"].default, fields["dim_feedforward"].default
-    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
-
-    return PRESETS["cpu_fair"].act_width
+#: The grid preset whose ACT stands beside each U-Net size: the CPU grid's (width 128 / 800) for the CPU sizes,
+#: the paper preset's (ACT's default width, 512 / 3200) at paper size.
+ACT_PRESET = {"grid": "cpu_fair", "cpu": "cpu_fair", "paper": "paper"}
 
 
-def build_act(width: tuple[int, int], device: str):
-    """LeRobot's ACT as the grid builds it (chunk 50 executed whole, ``width`` = dim_model / dim_feedforward)."""
-    from lerobot.policies.act.configuration_act import ACTConfig
+def build_act(size: str, device: str):
+    """LeRobot's ACT as the grid's ``ACT_PRESET[size]`` builds it (chunk 50 executed whole, the preset's width)."""
     from lerobot.policies.act.modeling_act import ACTPolicy
 
-    from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK
+    from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
+    from lerobot_focal.benchmarks.grid.methods import act_config
 
     inputs, outputs = benchmark_features()
-    cfg = ACTConfig(device=device, chunk_size=ACT_CHUNK, n_action_steps=ACT_CHUNK, dim_model=width[0],
-                    dim_feedforward=width[1], input_features=inputs, output_features=outputs)
-    return ACTPolicy(cfg).to(device)
+    return ACTPolicy(act_config(PRESETS[ACT_PRESET[size]], inputs, outputs, device=device)).to(device)
 
 
 def _obs(batch: int, device: str) -> dict[str, Tensor]:
@@ -145,19 +135,18 @@ def _obs(batch: int, device: str) -> dict[str, Tensor]:
     }
 
 
-def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor], act=None) -> tuple[float, dict]:
-    """(U-Net parameters in millions, median ms of ``bare`` U-Net forward, focal ``chunk`` and, given an ACT
-    policy, its ``act`` chunk, all in one round-robin); the models are freed on return."""
+def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor], act) -> tuple[float, dict]:
+    """(U-Net parameters in millions, median ms of ``bare`` U-Net forward, focal ``chunk`` and the ACT policy
+    ``act``'s chunk, all in one round-robin); focal is freed on return."""
     focal = build_focal(down_dims, device).eval()
     params = sum(p.numel() for p in focal.model.velocity_net.parameters()) / 1e6
     net = focal.ema_model
     cond = net.encode(obs)
     x = torch.randn(1, focal.config.horizon, ACTION_DIM, device=device)
     t = torch.full((1,), 0.01, device=device)
-    fns = {"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs)}
-    if act is not None:
-        latest = {k: v[:, -1] for k, v in obs.items()}  # ACT reads one observation step
-        fns["act"] = lambda: act.predict_action_chunk(latest)
+    latest = {k: v[:, -1] for k, v in obs.items()}  # ACT reads one observation step
+    fns = {"bare": lambda: net.velocity(x, t, cond), "chunk": lambda: focal.predict_action_chunk(obs),
+           "act": lambda: act.predict_action_chunk(latest)}
     with torch.no_grad():
         return params, time_ms(fns, device, repeats)
 
@@ -172,7 +161,7 @@ def _diffusion_ms(down_dims, device: str, sched: str, steps: int, repeats: int, 
 def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row]:
     down_dims = SIZES[size]
     obs = _obs(1, device)
-    act = build_act(act_width(size), device).eval()
+    act = build_act(size, device).eval()
     act_params = sum(p.numel() for p in act.parameters()) / 1e6
     params, ms = _focal_ms(down_dims, device, repeats, obs, act)
     chunk = ms["chunk"]
@@ -260,8 +249,16 @@ def plot(rows: list[Row], path: Path) -> None:
     save_png(fig, path, dpi=110)
 
 
+def header(command: str) -> str:
+    """The table file's title and the command that wrote it."""
+    return (f"# Policy speed\n\nCommand: `{command}`. Observation: 9-d state + 39-d object poses at batch 1; "
+            "focal horizon 12, diffusion horizon 16, ACT chunk 50 (one observation step); calls interleaved "
+            "round-robin in one process, medians.\n\n")
+
+
 def run(
-    sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path
+    sizes: list[str], device: str, repeats: int, train_batch: dict[str, int], ddpm: bool, out_dir: Path,
+    command: str = "lerobot-focal-bench speed",
 ) -> list[Row]:
     torch.manual_seed(0)
     if device.startswith("cuda"):
@@ -278,7 +275,7 @@ def run(
     print(table)
     out_dir.mkdir(parents=True, exist_ok=True)
     tag = "gpu" if device.startswith("cuda") else "cpu"
-    (out_dir / f"policy_speed_{tag}.md").write_text(table + "\n")
+    (out_dir / f"policy_speed_{tag}.md").write_text(header(command) + table + "\n")
     (out_dir / f"policy_speed_{tag}.json").write_text(
         json.dumps({"device": device_name, "rows": [r.__dict__ for r in rows]}, indent=2)
     )

@@ -36,5 +36,7 @@ def test_speed_benchmark_writes_table_json_and_plot_with_consistent_ratios(tmp_p
     train = rows["focal train step incl. EMA (batch 4)"]
     assert train["ratio"] == pytest.approx(
         train["median_ms"] / rows["plain flow-matching train step (batch 4)"]["median_ms"])
-    assert "| focal predict_action_chunk (1 NFE) |" in (tmp_path / "policy_speed_cpu.md").read_text()
+    md = (tmp_path / "policy_speed_cpu.md").read_text()
+    assert "| focal predict_action_chunk (1 NFE) |" in md
+    assert md.startswith("# Policy speed") and "`lerobot-focal-bench speed --sizes cpu --device cpu" in md
     assert (tmp_path / "policy_speed_cpu.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -154,6 +154,17 @@ def _act_inputs(preset: GridPreset, obs_type: str) -> list[str]:
     return args
 
 
+def act_config(preset: GridPreset, input_features: dict, output_features: dict, **fields):
+    """The ``ACTConfig`` that `_act_inputs`' flags give LeRobot's ACT in ``preset``, for the benchmarks that build
+    the grid's ACT in-process (`act-precision`, `speed`); ``fields`` adds other settings (device, lr)."""
+    from lerobot.policies.act.configuration_act import ACTConfig
+
+    width = {} if preset.act_width is None else {"dim_model": preset.act_width[0],
+                                                  "dim_feedforward": preset.act_width[1]}
+    return ACTConfig(input_features=input_features, output_features=output_features, chunk_size=ACT_CHUNK,
+                     n_action_steps=ACT_CHUNK, **width, **fields)
+
+
 _INPUTS: dict[str, Callable[[GridPreset, str], list[str]]] = {
     "focal": _focal_inputs,
     "diffusion": _diffusion_inputs,

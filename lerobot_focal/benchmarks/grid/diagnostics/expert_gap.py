@@ -140,8 +140,8 @@ def dither(actions: np.ndarray, expert: np.ndarray, last: np.ndarray, success: n
     successes and failures apart: at the first step of a chunk (t a multiple of ``replan_every``: LeRobot's
     queue re-plans there), inside chunks, and the expert's actions along the same states."""
     t = np.arange(1, actions.shape[1])  # the change into step t
-    change = {"replan": np.abs(np.diff(actions, axis=1)), "expert": np.abs(np.diff(expert, axis=1))}
-    parts = {"replan": ("replan", t % replan_every == 0), "within": ("replan", t % replan_every != 0),
+    change = {"policy": np.abs(np.diff(actions, axis=1)), "expert": np.abs(np.diff(expert, axis=1))}
+    parts = {"replan": ("policy", t % replan_every == 0), "within": ("policy", t % replan_every != 0),
              "expert": ("expert", np.ones_like(t, dtype=bool))}
     out: dict = {"replan_every": replan_every}
     for name, sel in (("success", success), ("failure", ~success)):
