@@ -26,6 +26,7 @@ from pathlib import Path
 from ...console import doc_parser
 from .metrics import top_k_mean
 from .processes import run_logged
+from .resume import seeded_records
 from .revisit import add_run_filters, measure_runs
 from .run import child_env, final_eval_command
 from .seeds import PER_SEED_BLOCK, RESCORE_BLOCKS, RESCORE_SEED
@@ -64,8 +65,7 @@ def measure(spec, blocks: int) -> dict:
     path.unlink(missing_ok=True)  # of an interrupted re-score
     run_logged(rescore_command(spec, checkpoint_of(spec.run_dir), episodes), spec.run_dir / "rescore_eval.log",
                child_env(p), "lerobot-eval (re-score)")
-    eps = [json.loads(x) for x in path.read_text().splitlines() if x]
-    eps = [e for e in eps if e.get("seed") is not None]
+    eps = seeded_records(path)
     if len(eps) != episodes:
         raise RuntimeError(f"expected {episodes} re-score episodes, found {len(eps)} in {path}")
     return {**block_scores(eps, p.eval_episodes, p.top_k), "first_seed": min(e["seed"] for e in eps)}

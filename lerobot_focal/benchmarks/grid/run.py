@@ -34,6 +34,7 @@ from .resume import (
     prune_checkpoints,
     resume_command,
     seeded_episodes,
+    seeded_records,
     start_segment,
 )
 from .seeds import FINAL_EVAL_SEED, fresh_offset
@@ -225,8 +226,7 @@ def run_one(spec: RunSpec) -> RunRecord:
         for stale in (out / "final_episodes.jsonl", out / "final_eval"):  # of an interrupted final evaluation
             shutil.rmtree(stale) if stale.is_dir() else stale.unlink(missing_ok=True)
         run_logged(final_eval_command(spec, checkpoint), out / "final_eval.log", env, "final lerobot-eval")
-        fresh = [json.loads(x) for x in (out / "final_episodes.jsonl").read_text().splitlines() if x]
-        fresh = [e for e in fresh if e.get("seed") is not None]
+        fresh = seeded_records(out / "final_episodes.jsonl")
         if len(fresh) != p.final_episodes:
             raise RunFailed(f"expected {p.final_episodes} final episodes, found {len(fresh)} in {out}")
         final = {

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from ....console import doc_parser
 from ..metrics import paired_difference
 from ..processes import run_logged
+from ..resume import seeded_records
 from ..revisit import add_run_filters, finished_runs, no_runs_message
 from ..run import child_env, final_eval_command
 from ..specs import RunSpec, checkpoint_of, specs_of_grid
@@ -114,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
                        f"lerobot-eval ({variant.label})")
         elif not episodes_file.exists():
             continue  # compared by an earlier version that kept no ATV, and its episodes are gone
-        eps = [json.loads(x) for x in episodes_file.read_text().splitlines() if x]
-        eps = [e for e in eps if e.get("seed") is not None]
+        eps = seeded_records(episodes_file)
+        if not eps:
+            raise RuntimeError(f"{r.key}: no seeded episodes in {episodes_file}; see {args.variant}_eval.log beside it")
         done[r.key] = {"grid": r.success_fresh, "variant": sum(e["success"] for e in eps) / len(eps),
                           "episodes": len(eps), "atv_grid": r.atv_fresh,
                           "atv_variant": sum(e["action_total_variation"] for e in eps) / len(eps)}
