@@ -135,7 +135,7 @@ def _obs(batch: int, device: str) -> dict[str, Tensor]:
     }
 
 
-def _focal_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor], act) -> tuple[float, dict]:
+def _one_pass_ms(down_dims, device: str, repeats: int, obs: dict[str, Tensor], act) -> tuple[float, dict]:
     """(U-Net parameters in millions, median ms of ``bare`` U-Net forward, focal ``chunk`` and the ACT policy
     ``act``'s chunk, all in one round-robin); focal is freed on return."""
     focal = build_focal(down_dims, device).eval()
@@ -163,7 +163,7 @@ def inference_rows(size: str, device: str, repeats: int, ddpm: bool) -> list[Row
     obs = _obs(1, device)
     act = build_act(size, device).eval()
     act_params = sum(p.numel() for p in act.parameters()) / 1e6
-    params, ms = _focal_ms(down_dims, device, repeats, obs, act)
+    params, ms = _one_pass_ms(down_dims, device, repeats, obs, act)
     chunk = ms["chunk"]
     rows = [
         Row(size, params, "bare U-Net forward", ms["bare"]),
