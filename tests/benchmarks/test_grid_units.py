@@ -527,7 +527,8 @@ def test_gripper_variant_snaps_to_the_two_levels_of_the_runs_own_demos(tmp_path)
 
 def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path):
     """The mean curve over tasks and whole seeds, against step × batch and prorated wall time; a seed missing a
-    task is left out; the report shows the table and writes the plot."""
+    task is left out; a method with no whole seed is named as left out; the report shows the table and writes the
+    plot."""
     from lerobot_focal.benchmarks.grid.grid_presets import PRESETS
     from lerobot_focal.benchmarks.grid.report import learning_efficiency, write_report
 
@@ -539,14 +540,15 @@ def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path)
 
     records = [record("a", "focal", 0, [0.0, 0.5, 1.0, 1.0], 1200.0),
                record("b", "focal", 0, [0.0, 0.1, 0.2, 0.4], 600.0),
-               record("a", "focal", 1, [1.0, 1.0, 1.0, 1.0], 60.0)]  # seed 1 lacks task b: left out
+               record("a", "focal", 1, [1.0, 1.0, 1.0, 1.0], 60.0),  # seed 1 lacks task b: left out
+               record("a", "act", 0, [0.2, 0.2, 0.2, 0.2], 60.0)]  # no seed of ACT has every task
     e = learning_efficiency(records, ["a", "b"], "focal", batch_size=64)
     assert e["runs"] == 2 and e["samples"] == [32000.0, 64000.0, 96000.0, 128000.0]
     assert e["success"] == pytest.approx([0.0, 0.3, 0.6, 0.7])
     assert e["minutes"] == pytest.approx([(5 + 2.5) / 2, (10 + 5) / 2, (15 + 7.5) / 2, (20 + 10) / 2])
     assert learning_efficiency(records, ["a", "b"], "act", batch_size=64) is None
 
-    grid = {"preset": PRESETS["cpu_fair"].to_dict(), "overrides": {}, "tasks": ["a", "b"], "methods": ["focal"],
+    grid = {"preset": PRESETS["cpu_fair"].to_dict(), "overrides": {}, "tasks": ["a", "b"], "methods": ["focal", "act"],
             "seeds": [0, 1]}
     (tmp_path / "grid.json").write_text(json.dumps(grid))
     for r in records:
@@ -554,6 +556,7 @@ def test_learning_efficiency_is_success_against_samples_and_wall_clock(tmp_path)
     report = write_report(tmp_path).read_text()
     # best mean 70 %; 90 % of it (63 %) first reached at the last evaluation: 128 k samples, 15 minutes
     assert "| FocalPolicy | 2 | 70.0 | 128 k | 15.0 |" in report
+    assert "Left out, no seed has every task yet: ACT" in report  # named, not silently dropped
     assert (tmp_path / "learning_efficiency.png").stat().st_size > 10_000
 
 

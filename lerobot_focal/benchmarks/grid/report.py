@@ -611,10 +611,12 @@ def learning_efficiency(records: list[RunRecord], tasks: list[str], method: str,
 
 def _learning_efficiency_section(records: list[RunRecord], tasks: list[str], methods: list[str], label: dict,
                                  preset: dict) -> list[str]:
-    rows = []
+    rows, partial = [], []
     for m in methods:
         e = learning_efficiency(records, tasks, m, preset["batch_size"])
         if e is None:
+            if any(r.method == m and r.task in tasks and r.curve for r in records):
+                partial.append(label[m])
             continue
         best = max(e["success"])
         # The first evaluation at 90 % of the method's own best mean success: how soon it gets most of the way.
@@ -629,7 +631,10 @@ def _learning_efficiency_section(records: list[RunRecord], tasks: list[str], met
             "step; runs shared the machine, so compare methods of one grid only). The table: the best of that mean "
             "curve and the samples and minutes of the first evaluation at 90 % of it.", "",
             "| Method | runs | best mean success (%) | samples to 90 % of it | minutes to 90 % of it |",
-            "|---|---|---|---|---|", *rows, "", "![learning efficiency](learning_efficiency.png)", ""]
+            "|---|---|---|---|---|", *rows, "",
+            *([f"Left out, no seed has every task yet: {', '.join(partial)} (see its cells above).", ""]
+              if partial else []),
+            "![learning efficiency](learning_efficiency.png)", ""]
 
 
 def _plot_learning_efficiency(out_dir: Path, records: list[RunRecord], tasks: list[str], methods: list[str],
