@@ -62,7 +62,8 @@ mkdir -p "$ROOT$PYTHON312_ROOT"
 mount --bind "$PYTHON312_ROOT" "$ROOT$PYTHON312_ROOT" && mount -o remount,bind,ro "$ROOT$PYTHON312_ROOT"
 cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
 cp /usr/local/share/ca-certificates/*.crt "$ROOT/usr/local/share/ca-certificates/" 2>/dev/null || true
-chroot "$ROOT" update-ca-certificates >/dev/null
+# The host's bundle file sits in /usr/local/share/ca-certificates beside the single certificates: rehash warns.
+chroot "$ROOT" update-ca-certificates 2>&1 >/dev/null | { grep -v '^rehash: warning' >&2 || true; }
 [ -f /etc/pip.conf ] && cp /etc/pip.conf "$ROOT/etc/pip.conf"
 [ -d /etc/xdg/pip ] && mkdir -p "$ROOT/etc/xdg" && cp -r /etc/xdg/pip "$ROOT/etc/xdg/"
 
