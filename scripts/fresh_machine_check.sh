@@ -27,10 +27,10 @@ PYTEST_ARGS=(tests/test_system_libs.py tests/envs/test_pointcloud.py tests/datas
 if [ "${1:-}" = "--" ]; then shift; PYTEST_ARGS=("$@"); fi
 
 die() { echo "error: $*" >&2; exit 1; }
-[ "$(id -u)" -eq 0 ] || die "debootstrap and chroot need root. Fix: run with sudo."
-command -v debootstrap >/dev/null || die "debootstrap is missing. Fix: apt-get install debootstrap."
 [ -d "$PYTHON312_ROOT/versions" ] && ls -d "$PYTHON312_ROOT"/versions/3.12* >/dev/null 2>&1 \
     || die "no Python 3.12 under $PYTHON312_ROOT/versions. Fix: pyenv install 3.12, or set PYTHON312_ROOT."
+[ "$(id -u)" -eq 0 ] || die "debootstrap and chroot need root. Fix: run with sudo."
+command -v debootstrap >/dev/null || die "debootstrap is missing. Fix: apt-get install debootstrap."
 if [ -z "${MIRROR:-}" ]; then
     MIRROR="$(cat /etc/apt/sources.list.d/*.sources 2>/dev/null | awk '/^URIs:/ {print $2; exit}')"
     [ -n "$MIRROR" ] || MIRROR="$(awk '/^deb / {print $2; exit}' /etc/apt/sources.list 2>/dev/null || true)"

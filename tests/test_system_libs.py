@@ -43,3 +43,16 @@ def test_check_finds_ldconfig_outside_a_users_path():
         env=env,
     )
     assert proc.returncode == 0, proc.stderr
+
+
+def test_fresh_machine_check_stops_before_building_without_a_python_312(tmp_path):
+    """scripts/fresh_machine_check.sh needs a Python 3.12 to carry into the bare root: without one it says how to
+    get one and creates nothing (no root directory, no debootstrap)."""
+    root = tmp_path / "root"
+    env = {**os.environ, "PYTHON312_ROOT": str(tmp_path / "no_pyenv"), "ROOT": str(root)}
+    proc = subprocess.run(["bash", str(REPO / "scripts" / "fresh_machine_check.sh")], capture_output=True,
+                          text=True, timeout=60, env=env)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert f"no Python 3.12 under {tmp_path / 'no_pyenv'}/versions" in proc.stderr
+    assert "pyenv install 3.12" in proc.stderr
+    assert not root.exists()
