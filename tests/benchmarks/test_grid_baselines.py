@@ -264,6 +264,48 @@ def test_cost_table_flags_runs_of_one_method_on_machines_of_different_speed(tmp_
     assert "compare methods only across runs that ran side by side" in cost
 
 
+def test_cost_table_and_latency_goal_give_one_number_when_tasks_have_unequal_seeds(tmp_path):
+    """ACT has two seeds on pick-place (latency 2 and 4 ms) and one on disassemble (6 ms): each task weighs alike,
+    (3 + 6) / 2 = 4.5 ms, in the cost table and in the latency goal (a mean over the three runs would say 4.0)."""
+    from lerobot_focal.benchmarks.grid.report import write_report
+    from tests.benchmarks.test_grid_estimators import _record
+
+    grid = {"preset": json.loads(json.dumps(PRESETS["cpu_fair"].to_dict())), "overrides": {},
+            "tasks": ["pick-place", "disassemble"], "methods": ["focal", "act"], "seeds": [0, 1]}
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    for m, task, seed, latency in (("focal", "pick-place", 0, 6.0), ("focal", "disassemble", 0, 6.0),
+                                   ("act", "pick-place", 0, 2.0), ("act", "pick-place", 1, 4.0),
+                                   ("act", "disassemble", 0, 6.0)):
+        record = _record(task, m, seed, 0.5, 0.4, "fresh")
+        record["latency_ms"] = latency
+        ResultsFile(tmp_path / "results.jsonl").append(record)
+    report = write_report(tmp_path).read_text()
+    cost = report.split("## Cost per run")[1].split("\n## ")[0]
+    assert "| ACT | 1 | 4.5 |" in cost
+    assert "latency per chunk: focal 6.0 ms vs ACT 4.5 ms, a ratio of 1.33 (NFE 1 vs 1) → within 1.5× of ACT's: " \
+           "**met**" in report
+
+
+def test_paired_table_keeps_a_method_whose_records_predate_the_fresh_episode_number(tmp_path):
+    """A smoke grid recorded before runs scored fresh episodes: its top-5 pairs stay in the table, the fresh
+    column says n/a; a grid with no pair at all gets no paired table."""
+    from lerobot_focal.benchmarks.grid.report import write_report
+    from tests.benchmarks.test_grid_estimators import _record
+
+    grid = {"preset": json.loads(json.dumps(PRESETS["cpu"].to_dict())), "overrides": {},
+            "tasks": ["disassemble"], "methods": ["focal", "diffusion"], "seeds": [0, 1]}
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    for m, seed, top in (("focal", 0, 0.5), ("focal", 1, 0.6), ("diffusion", 0, 0.2), ("diffusion", 1, 0.4)):
+        record = _record("disassemble", m, seed, top, 0.4, "fixed")
+        del record["success_fresh"], record["fresh_episodes"]
+        ResultsFile(tmp_path / "results.jsonl").append(record)
+    report = write_report(tmp_path).read_text()
+    assert "| DP (DDIM 10) | +25.0 [" in report and "(n=2; 2/0/0) | n/a |" in report
+    grid["methods"] = ["focal"]
+    (tmp_path / "grid.json").write_text(json.dumps(grid))
+    assert "## Paired comparisons" not in write_report(tmp_path).read_text()
+
+
 def test_a_method_trains_to_its_own_budget_with_as_many_evaluations(tmp_path):
     """method_steps: ACT's runs train 12000 steps with 16 evaluations (every 750), every other method the preset's
     20000; a budget that does not divide into the evaluations is refused; and a results folder recorded before

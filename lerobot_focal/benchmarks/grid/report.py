@@ -118,15 +118,17 @@ MODULE_CONTRASTS: tuple[tuple[str, str, str], ...] = (
 
 
 def _paired_cells(records: list[RunRecord], tasks: list[str], a: str, b: str, keys: list[tuple]) -> list[str] | None:
-    """One table row's cells: a − b per key, with its interval and a's wins / ties / losses; None if no pair."""
+    """One table row's cells: a − b per key, with its interval and a's wins / ties / losses, n/a for a key no pair
+    has (records older than the key); None if no key has a pair."""
     cells = []
     for key, _ in keys:
         d = paired_difference(*_pairs(records, a, b, key, tasks))
         if d["n"] == 0:
-            return None
+            cells.append("n/a")
+            continue
         ci = "" if math.isnan(d["lo"]) else f" [{d['lo'] * 100:+.1f}, {d['hi'] * 100:+.1f}]"
         cells.append(f"{d['mean'] * 100:+.1f}{ci} (n={d['n']}; {d['wins']}/{d['ties']}/{d['losses']})")
-    return cells
+    return None if all(c == "n/a" for c in cells) else cells
 
 
 def _rival(method: str) -> str:
@@ -145,11 +147,13 @@ def _paired_table(
             "Differences in success points over the (task, seed) pairs both methods have (same demos, same "
             "evaluation episodes), mean with a 95 % Student-t interval, and focal's wins / ties / losses.", "",
             "| Method " + header, rule]
+    method_rows = []
     for m in methods:
         rival = _rival(m)
         cells = None if m == "focal" or rival not in methods else _paired_cells(records, tasks, rival, m, keys)
         name = label[m] if rival == "focal" else f"{label[m]} (against {label[rival]})"
-        rows += [f"| {name} | " + " | ".join(cells) + " |"] if cells else []
+        method_rows += [f"| {name} | " + " | ".join(cells) + " |"] if cells else []
+    rows = rows + method_rows if method_rows else []
     contrasts = [(a, b, what) for a, b, what in MODULE_CONTRASTS if a in methods and b in methods]
     module_rows = []
     for a, b, what in contrasts:
@@ -157,10 +161,10 @@ def _paired_table(
         if cells:
             module_rows.append(f"| {label[a]} − {label[b]}: {what} | " + " | ".join(cells) + " |")
     if module_rows:
-        rows += ["", "## Paired comparisons: what one module adds", "",
+        rows += ([""] if rows else []) + ["## Paired comparisons: what one module adds", "",
                  "The same paired differences between two methods that differ in one module only (wins / ties / "
                  "losses are the first method's).", "", "| Contrast " + header, rule, *module_rows]
-    return rows + [""]
+    return rows + [""] if rows else []
 
 
 def _point_cloud_goal(records: list[RunRecord], tasks: list[str], label: dict) -> list[str]:
@@ -231,16 +235,13 @@ def _goals(records: list[RunRecord], tasks: list[str], methods: list[str], label
             lines.append(f"- {who(rival)} ≥ {label[m]} ({number}, paired over {d['n']} task-seed pairs): "
                          f"{d['mean'] * 100:+.1f} points{ci} → {_verdict(d)}")
 
-    def run_mean(method: str, key: str) -> float:  # over every finished run: cost needs no whole seed
-        return mean_std([r.value(key) for r in records if r.method == method and getattr(r, key) is not None])[0]
-
     for m in (b for b in baselines if b in METHODS and METHODS[b].policy_type != "focal"):
         rival = _rival(m)
-        lf, lm = run_mean(rival, "latency_ms"), run_mean(m, "latency_ms")
+        lf, lm = cost_per_run(records, rival, "latency_ms"), cost_per_run(records, m, "latency_ms")
         if math.isnan(lm) or math.isnan(lf):
             continue
         line = (f"- latency per chunk: {who(rival)} {lf:.1f} ms vs {label[m]} {lm:.1f} ms, a ratio of {lf / lm:.2f} "
-                f"(NFE {run_mean(rival, 'nfe'):.0f} vs {run_mean(m, 'nfe'):.0f})")
+                f"(NFE {cost_per_run(records, rival, 'nfe'):.0f} vs {cost_per_run(records, m, 'nfe'):.0f})")
         if m in LATENCY_GOALS:  # a goal of the benchmark: focal's latency within this factor of the method's
             factor = LATENCY_GOALS[m]
             line += f" → within {factor:g}× of {label[m]}'s: **{'met' if lf <= factor * lm else 'MISSED'}**"
@@ -434,13 +435,12 @@ def write_report(out_dir: Path) -> Path:
            "wall time per run (min) | torch threads |", "|---|---|---|---|---|---|"]
     ranges = {m: _update_range(records, m) for m in methods}
     for m in methods:
-        vals = {k: mean_std([agg[m][t][k][0] for t in agg[m]]) for k in ("nfe", "latency_ms", "update_s_per_step",
-                                                                         "wall_s")}
+        vals = {k: cost_per_run(records, m, k) for k in ("nfe", "latency_ms", "update_s_per_step", "wall_s")}
         threads = sorted({r.torch_threads for r in records if r.method == m and r.torch_threads is not None})
         low, high = ranges[m]
         spread = f" ({low:.3f}–{high:.3f})" if high > SPEED_SPREAD * low else ""
-        md.append(f"| {label[m]} | {vals['nfe'][0]:.0f} | {vals['latency_ms'][0]:.1f} | "
-                  f"{vals['update_s_per_step'][0]:.3f}{spread} | {vals['wall_s'][0] / 60:.1f} | "
+        md.append(f"| {label[m]} | {vals['nfe']:.0f} | {vals['latency_ms']:.1f} | "
+                  f"{vals['update_s_per_step']:.3f}{spread} | {vals['wall_s'] / 60:.1f} | "
                   f"{', '.join(map(str, threads)) or '–'} |")
     if any(high > SPEED_SPREAD * low for low, high in ranges.values()):
         md += ["", f"A method whose update time varies by more than {SPEED_SPREAD:g}× between its runs (its range in "
@@ -578,6 +578,17 @@ def _plots(out_dir: Path, agg: dict, records: list[RunRecord], tasks: list[str],
 
 #: Update times of one method's runs further apart than this: the machine's speed changed between them.
 SPEED_SPREAD = 1.5
+
+
+def cost_per_run(records: list[RunRecord], method: str, key: str) -> float:
+    """`method`'s mean of a cost (latency, NFE, update time, wall time) over its tasks, each task the mean of its
+    finished runs; nan without any. Cost needs no whole seed, and weighting tasks alike keeps a method whose
+    extra seeds ran on slow tasks from looking slower. The Cost table and the latency goal both read this."""
+    by_task: dict[str, list[float]] = defaultdict(list)
+    for r in records:
+        if r.method == method and getattr(r, key) is not None:
+            by_task[r.task].append(r.value(key))
+    return mean_std([float(np.mean(v)) for v in by_task.values()])[0]
 
 
 def _update_range(records: list[RunRecord], method: str) -> tuple[float, float]:
