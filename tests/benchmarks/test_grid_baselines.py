@@ -266,8 +266,8 @@ def test_cost_table_flags_runs_of_one_method_on_machines_of_different_speed(tmp_
 
 def test_cost_table_and_latency_goal_read_one_number_robust_to_a_slow_session(tmp_path):
     """ACT's three runs timed its network at 2 and 3 ms, and at 9 ms in a session when the machine was slow: the
-    cost table and the latency goal both say the median, 3.0 ms (a mean over runs would say 4.7 and miss the goal,
-    a mean over tasks 5.8). Wall time depends on the task, so each task weighs alike: (60 + 120) / 2 min on
+    cost table and the latency goal both say the median, 3.0 ms (a mean over runs would say 4.7, a mean over
+    tasks 5.8). Wall time depends on the task, so each task weighs alike: (60 + 120) / 2 min on
     pick-place and 300 on disassemble give 195 min (a mean over the three runs would say 160)."""
     from lerobot_focal.benchmarks.grid.report import write_report
     from tests.benchmarks.test_grid_estimators import _record
