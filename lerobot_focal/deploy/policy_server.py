@@ -180,7 +180,17 @@ class FocalPolicyServer(PolicyServer):
         if self._retry.is_set():
             self._retry.clear()
             obs.must_go = True  # the last one failed: LeRobot's filters would drop this one as "already predicted"
+        elif not obs.must_go and self.last_processed_obs is None and self._already_predicted(obs):
+            # LeRobot's filters start only once the first chunk is done. While it is computed (the slowest chunk:
+            # the first call), the client keeps streaming its start observation; a second chunk for that frame
+            # reaches the client while it executes the first action, which LeRobot's client then queues again
+            # (it marks an action done only after sending it) and executes twice.
+            return False
         return super()._enqueue_observation(obs)
+
+    def _already_predicted(self, obs: TimedObservation) -> bool:
+        with self._predicted_timesteps_lock:
+            return obs.get_timestep() in self._predicted_timesteps
 
     # --- actions -------------------------------------------------------------------------------------------
     def GetActions(self, request, context):  # noqa: N802

@@ -176,6 +176,36 @@ def test_chunks_use_both_frames_and_match_the_synchronous_rollout(server, checkp
     assert np.abs(got[1] - copied).max() > 1e-3
 
 
+def test_the_start_observation_streamed_during_the_first_chunk_gets_no_second_chunk(server, checkpoint):
+    """LeRobot's filters start once a chunk is done; until then its client streams its start observation, and a
+    second chunk for it would make the client execute action 0 twice (tests/deploy/test_async_inference.py)."""
+    import threading
+
+    stub, servicer = server
+    _connect(stub, checkpoint)
+    computing, release = threading.Event(), threading.Event()
+    predict = servicer._predict_action_chunk
+
+    def slow_first_chunk(obs):
+        computing.set()
+        assert release.wait(30)
+        return predict(obs)
+
+    servicer._predict_action_chunk = slow_first_chunk
+    _send(stub, 0, raw_observation(0), must_go=True)
+    first: list = []
+    getter = threading.Thread(target=lambda: first.append(_get(stub)))
+    getter.start()
+    assert computing.wait(30)
+    _send(stub, 0, raw_observation(0), must_go=False)  # the client's stream while it waits (must_go cleared)
+    assert servicer.observation_queue.empty()
+    release.set()
+    getter.join(30)
+    assert [a.get_timestep() for a in first[0]] == [0, 1, 2, 3]
+    _send(stub, 0, raw_observation(1), must_go=True)  # must_go still goes through
+    assert not servicer.observation_queue.empty()
+
+
 def test_a_new_client_starts_a_new_history(server, checkpoint):
     stub, _ = server
     _connect(stub, checkpoint)

@@ -4,13 +4,17 @@
   becomes ``<dir>/chunk_<n>.pkl``: its frame index, the frames it was computed from (as the policy's
   preprocessor got them), the timesteps it was stamped with and the actions.
 * ``FOCAL_ASYNC_DUMP_CLIENT=<dir>`` (LeRobot's robot_client process): ``<dir>/robot.pkl``, a stream of
-  ``("obs", actions executed so far, raw observation)`` and ``("action", action dict)`` records in call order.
+  ``("obs", frame, raw observation)`` and ``("action", action dict, timestep)`` records in call order. The
+  timestep is the one LeRobot's client stamped the action with (read from its caller, the client's
+  ``control_loop_action``: the client runs as ``__main__``, so its class cannot be wrapped from here); the frame
+  is the timestep of the last action sent + 1, the index the server gives the observation.
 
 The wrapped methods return what the originals return: the code paths under test are untouched.
 """
 
 import os
 import pickle
+import sys
 from pathlib import Path
 
 if os.environ.get("FOCAL_ASYNC_DUMP_SERVER"):
@@ -42,7 +46,7 @@ if os.environ.get("FOCAL_ASYNC_DUMP_CLIENT"):
     _client_dir = Path(os.environ["FOCAL_ASYNC_DUMP_CLIENT"])
     _client_dir.mkdir(parents=True, exist_ok=True)
     _stream = (_client_dir / "robot.pkl").open("ab")
-    _executed = [0]
+    _last_timestep = [-1]
     _get_observation, _send_action = UR10e.get_observation, UR10e.send_action
 
     def _dump(record):
@@ -51,12 +55,15 @@ if os.environ.get("FOCAL_ASYNC_DUMP_CLIENT"):
 
     def _recording_get_observation(self):
         obs = _get_observation(self)
-        _dump(("obs", _executed[0], dict(obs)))
+        _dump(("obs", _last_timestep[0] + 1, dict(obs)))
         return obs
 
     def _recording_send_action(self, action):
-        _dump(("action", dict(action)))
-        _executed[0] += 1
+        timed = sys._getframe(1).f_locals.get("timed_action")  # LeRobot's TimedAction being sent
+        timestep = timed.get_timestep() if timed is not None else None
+        _dump(("action", dict(action), timestep))
+        if timestep is not None:
+            _last_timestep[0] = timestep
         return _send_action(self, action)
 
     UR10e.get_observation, UR10e.send_action = _recording_get_observation, _recording_send_action
