@@ -84,7 +84,17 @@ TRAIN_CASES = {
 }
 
 
-@pytest.mark.parametrize("case", list(CASES))
+# Each case starts a LeRobot command (~10-15 s of imports on 2 cores). The default suite keeps one refusal per
+# command and config class; the other cases, whose messages tests/test_config_errors.py checks in process, run
+# with `pytest -m slow`.
+SLOW_CASES = {"metaworld-box", "gamepad-speed-teleoperate", "diffusion_fco-lambda"}
+
+
+def _cases(names) -> list:
+    return [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_CASES else n for n in names]
+
+
+@pytest.mark.parametrize("case", _cases(CASES))
 def test_bad_env_robot_or_teleop_value_reaches_the_user(case, tmp_path):
     command, args, message, config_class = CASES[case]
     proc = run_lerobot(command, *args, cwd=tmp_path, timeout=300)
@@ -92,7 +102,7 @@ def test_bad_env_robot_or_teleop_value_reaches_the_user(case, tmp_path):
     assert not any(tmp_path.iterdir()), "the command wrote something despite the bad value"
 
 
-@pytest.mark.parametrize("case", list(TRAIN_CASES))
+@pytest.mark.parametrize("case", _cases(TRAIN_CASES))
 def test_bad_value_of_another_plugin_config_stops_lerobot_train(case, dataset, tmp_path):
     args, message, config_class = TRAIN_CASES[case]
     proc = run_lerobot(

@@ -12,7 +12,7 @@ from lerobot_focal.benchmarks.act_precision import main
 from lerobot_focal.benchmarks.grid.methods import ACT_CHUNK
 from lerobot_focal.datasets.making.collect import collect, parse_args
 
-pytestmark = pytest.mark.heavy  # in process, ~20 s: one expert episode collected, two ACTs trained a few steps
+pytestmark = pytest.mark.slow  # in process, ~1 min on 2 cores: an expert episode collected, two ACTs trained briefly
 
 
 def test_act_precision_trains_both_precisions_from_the_same_start(tmp_path):

@@ -24,6 +24,7 @@ def test_runs_get_the_heap_only_malloc_settings_unless_the_user_set_their_own(mo
 
 
 @pytest.mark.subprocess
+@pytest.mark.slow  # ~30 s: two child processes timed; the settings themselves are checked above
 def test_allocator_benchmark_times_both_settings_in_child_processes_with_identical_results(tmp_path):
     assert allocator_main(["--inputs", "state", "--rounds", "1", "--steps", "2", "--batch", "8",
                            "--out", str(tmp_path)]) == 0  # exit 1 if the settings changed the loss or weights

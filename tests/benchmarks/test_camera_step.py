@@ -9,7 +9,7 @@ import pytest
 
 from lerobot_focal.benchmarks.camera_step import PAIRS, run
 
-pytestmark = pytest.mark.heavy  # in process, ~15-25 s: eight networks built, timed and trained
+pytestmark = pytest.mark.slow  # in process, ~30 s on 2 cores: eight networks built, timed and trained
 
 
 def test_camera_step_times_every_variant_and_compares_loss_curves(tmp_path):

@@ -195,7 +195,10 @@ def test_fair_phases_answer_the_main_question_first():
 
 
 @pytest.mark.subprocess
-@pytest.mark.parametrize(("method", "nfe"), [("diffusion_ema", 10.0), ("act", 1.0)])
+@pytest.mark.parametrize(("method", "nfe"), [
+    pytest.param("diffusion_ema", 10.0, marks=pytest.mark.slow),  # ~2 min; trained: tests/policy/test_diffusion_ema.py
+    ("act", 1.0),
+])
 def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, nfe):  # noqa: F811
     out = tmp_path / "out"
     assert driver.main([*TINY_ARGS, "--preset", "cpu_fair", "--methods", method, "--out", str(out),
@@ -389,8 +392,8 @@ def test_dp3_is_compared_with_focal_on_the_same_point_clouds(tmp_path):
 
 
 @pytest.mark.subprocess
-@pytest.mark.parametrize("method", ["focal_rgb", pytest.param("diffusion_rgb", marks=pytest.mark.slow),
-                                    pytest.param("act_rgb", marks=pytest.mark.slow)])
+@pytest.mark.slow  # ~2 min each; image focal's training: tests/robots/test_ur10e_loop.py
+@pytest.mark.parametrize("method", ["focal_rgb", "diffusion_rgb", "act_rgb"])
 def test_camera_methods_train_and_evaluate_on_rgb_and_state_only(work, tmp_path, method):  # noqa: F811
     """cpu_rgb: the demos hold an 84x84 camera and the state but no object poses; the policy reads the camera
     (cropped) and the state; LeRobot's evaluation renders the camera at the demos' size."""

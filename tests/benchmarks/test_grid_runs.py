@@ -143,6 +143,7 @@ def test_kept_checkpoints_are_evaluated_on_the_final_evaluations_own_episodes(wo
     assert by_seed("ckpt4") == by_seed("final")  # same episodes and noise: identical actions, to the last digit
 
 
+@pytest.mark.slow  # ~1.5 min: Ray, the optional cluster executor; the local executor's tests stay in the default suite
 def test_ray_executor_runs_gathers_and_retries(work, tmp_path):
     pytest.importorskip("ray")
     from lerobot_focal.benchmarks.grid.demos import task_data
@@ -196,6 +197,7 @@ def _starts(work: Path, key: str) -> int:
     return attempts.read_text().count(key) if attempts.exists() else 0
 
 
+@pytest.mark.slow  # ~1 min; the default suite keeps an interrupted run resuming from its checkpoint
 def test_interrupted_grid_stops_its_runs_and_resumes(work, tmp_path):
     """Ctrl-C (SIGINT) on the driver: exit 130, the run in flight is stopped (no orphaned lerobot-train), no
     failure is recorded for it, nothing is retried; the same command then finishes the grid."""

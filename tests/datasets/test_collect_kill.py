@@ -99,6 +99,7 @@ def test_rerun_rolls_back_an_episode_killed_while_it_was_being_saved(tmp_path):
     _check_complete(root, 3)
 
 
+@pytest.mark.slow  # ~45 s; the salvage command itself: tests/datasets/test_salvage.py
 def test_unclosed_files_without_a_commit_record_are_named_with_the_salvage_command(tmp_path):
     """A folder killed before it had a commit record (written by an earlier version, or by LeRobot's writer):
     collect refuses it, naming the unreadable file and the command that recovers the finished episodes."""

@@ -195,8 +195,9 @@ def test_network_blip_shorter_than_the_watchdog_is_ridden_out_a_longer_one_is_no
 
 @pytest.mark.parametrize(
     ("version", "frequency", "outputs"),
-    [((3, 15, 0, 0), 125.0, 13), ((5, 15, 0, 0), 500.0, 13), ((5, 23, 0, 0), 500.0, 43)],
-    ids=["cb3-3.15", "e-series-5.15", "e-series-5.23"],
+    [pytest.param((3, 15, 0, 0), 125.0, 13, id="cb3-3.15", marks=pytest.mark.slow),  # ~15 s each
+     pytest.param((5, 15, 0, 0), 500.0, 13, id="e-series-5.15", marks=pytest.mark.slow),
+     pytest.param((5, 23, 0, 0), 500.0, 43, id="e-series-5.23")],
 )
 def test_controller_versions(version, frequency, outputs, tmp_path):
     with RtdeEmulatorProcess(free_loopback_host(), version=version) as emu:
