@@ -194,11 +194,8 @@ def test_fair_phases_answer_the_main_question_first():
     assert phases == [["focal", "diffusion_ema", "act"], ["wo_fco_las"]]
 
 
-@pytest.mark.subprocess
-@pytest.mark.parametrize(("method", "nfe"), [
-    pytest.param("diffusion_ema", 10.0, marks=pytest.mark.slow),  # ~2 min; trained: tests/policy/test_diffusion_ema.py
-    ("act", 1.0),
-])
+@pytest.mark.slow  # ~2 min each; their training: tests/policy/test_diffusion_ema.py, the ACT unit tests above
+@pytest.mark.parametrize(("method", "nfe"), [("diffusion_ema", 10.0), ("act", 1.0)])
 def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, nfe):  # noqa: F811
     out = tmp_path / "out"
     assert driver.main([*TINY_ARGS, "--preset", "cpu_fair", "--methods", method, "--out", str(out),

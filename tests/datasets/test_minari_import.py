@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.subprocess  # the import command
+pytestmark = pytest.mark.slow  # the import command (~20 s), an optional route into the benchmark's datasets
 
 minari = pytest.importorskip("minari")
 pytest.importorskip("gymnasium_robotics")

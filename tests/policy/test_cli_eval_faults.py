@@ -101,7 +101,8 @@ def test_pointcloud_channel_mismatch_is_named_before_normalising(tmp_path):
     assert "must match the size of tensor" not in proc.stderr
 
 
-@pytest.mark.parametrize("damage", ["truncated", "empty", "garbled_header"])
+@pytest.mark.parametrize("damage", ["truncated", pytest.param("empty", marks=pytest.mark.slow),  # ~15 s each
+                                    pytest.param("garbled_header", marks=pytest.mark.slow)])
 def test_corrupt_weights_file_is_named(damage, checkpoint, tmp_path):
     ckpt = _copy(checkpoint, tmp_path)
     weights = ckpt / "model.safetensors"

@@ -72,6 +72,7 @@ def test_train_pushes_a_folder_that_loads_back_with_a_focal_model_card(tmp_path)
     assert action.shape == (1, cfg.output_features["action"].shape[0]) and torch.isfinite(action).all()
 
 
+@pytest.mark.slow  # ~15 s; the push itself is the training test's above
 def test_collect_push_to_hub_uploads_the_finished_dataset(tmp_path):
     pytest.importorskip("metaworld")
     hub = tmp_path / "hub"
