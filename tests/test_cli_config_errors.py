@@ -84,7 +84,7 @@ TRAIN_CASES = {
 }
 
 
-# Each case starts a LeRobot command (~10-15 s of imports on 2 cores). The default suite keeps one refusal per
+# Each case starts a LeRobot command (~13 s of imports on 2 cores). The default suite keeps one refusal per
 # command and config class; the other cases, whose messages tests/test_config_errors.py checks in process, run
 # with `pytest -m slow`.
 SLOW_CASES = {"metaworld-box", "gamepad-speed-teleoperate", "diffusion_fco-lambda"}

@@ -117,6 +117,7 @@ OTHER_BAD = [
     (FocalGamepadConfig, dict(mapping=GamepadMapping(deadman_button=-1)), "deadman_button"),
     (FocalGamepadConfig, dict(speed_levels=[0.5, float("inf")]), "speed_levels"),
     (DiffusionFcoConfig, dict(fco_time_weight=-1.0), "--policy.type=diffusion_fco: fco_time_weight"),
+    (DiffusionFcoConfig, dict(fco_lambda=-1.0), "--policy.type=diffusion_fco: fco_lambda must be a number ≥ 0"),
     (DiffusionFcoConfig, dict(fco_keep_diffusion_loss=False, fco_lambda=0.0, fco_time_weight=0.0),
      "nothing would train"),
     (FusedAdamWConfig, dict(betas=(0.9,)), "--optimizer.type=focal_adamw: betas must be two numbers"),
