@@ -24,7 +24,9 @@ ensure_venv "$VENV"
 
 # The extras this plugin's tests use: training + diffusion (the policy), metaworld (focal_metaworld env),
 # gamepad (the virtual F710); the plugin's own sim, robot and dev extras.
-stamp="$(cd "$TREE" && find pyproject.toml src -type f -not -path '*.egg-info/*' -printf '%P %s %T@\n' | sort | sha256sum | cut -c1-16)"
+# The stamp covers the tree and the plugin's own pyproject.toml (a new test dependency, such as pytest-xdist, reinstalls).
+tree_stamp="$(cd "$TREE" && find pyproject.toml src -type f -not -path '*.egg-info/*' -printf '%P %s %T@\n' | sort)"
+stamp="$(printf '%s\n%s\n' "$tree_stamp" "$(sha256sum pyproject.toml)" | sha256sum | cut -c1-16)"
 previous="$(cat "$VENV/.lerobot-tree" 2>/dev/null || true)"
 if [ "$previous" != "$TREE $stamp" ]; then
     echo "[lerobot-main] installing LeRobot from $TREE and lerobot_focal[sim,robot,dev] into $VENV"

@@ -11,6 +11,14 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 os.environ.setdefault("WANDB_MODE", "disabled")
 
+# The suite runs on two pytest-xdist workers (pyproject's addopts: `-n 2 --dist loadscope`; `-n 0` runs it in one
+# process). Each worker, and every process its tests start, gets one torch/OpenMP thread: two workers with two
+# threads each on a two-core machine run torch several times slower than one (the grid's allocator measurements).
+# xdist names the worker before this file is imported, so the setting reaches torch's first import.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
+
 
 # ---------------------------------------------------------------------------------------------- the fast tier
 # `pytest -m fast` runs every test that starts no process and finishes within a few seconds: the edit-and-test loop
@@ -106,15 +114,26 @@ _GUARDED = (
 )
 
 
+def _is_xdist_controller(config: pytest.Config) -> bool:
+    """Whether this process only hands tests to xdist workers (which run them, with this file's guards)."""
+    return config.pluginmanager.has_plugin("dsession")
+
+
+def _is_xdist_worker(config: pytest.Config) -> bool:
+    return hasattr(config, "workerinput")
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtestloop(session: pytest.Session):
     if not _state["fast"]:
+        return (yield)
+    _state["started"] = time.monotonic()
+    if _is_xdist_controller(session.config):  # it runs no test, and may start a worker again
         return (yield)
     saved = [(owner, name, getattr(owner, name)) for owner, name, _ in _GUARDED if hasattr(owner, name)]
     for owner, name, what in _GUARDED:
         if hasattr(owner, name):
             setattr(owner, name, _refuse(what, getattr(owner, name)))
-    _state["started"] = time.monotonic()
     try:
         return (yield)
     finally:
@@ -159,6 +178,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if not _state["fast"] or _state["started"] is None or not session.testscollected:
+        return
+    if _is_xdist_worker(session.config):  # the tier's wall time is the controller's
         return
     elapsed = time.monotonic() - _state["started"]
     if elapsed > FAST_TIER_BUDGET_S:
