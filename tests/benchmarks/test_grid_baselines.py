@@ -194,8 +194,11 @@ def test_fair_phases_answer_the_main_question_first():
     assert phases == [["focal", "diffusion_ema", "act"], ["wo_fco_las"]]
 
 
-@pytest.mark.slow  # ~2 min each; diffusion_ema's training: tests/policy/test_diffusion_ema.py; ACT's settings: above
-@pytest.mark.parametrize(("method", "nfe"), [("diffusion_ema", 10.0), ("act", 1.0)])
+@pytest.mark.subprocess  # ~2 min each (lerobot-train and lerobot-eval); ACT's grid run is in the default suite
+@pytest.mark.parametrize(("method", "nfe"), [
+    pytest.param("diffusion_ema", 10.0, marks=pytest.mark.slow),  # its training: tests/policy/test_diffusion_ema.py
+    ("act", 1.0),
+])
 def test_baselines_run_in_the_grid_with_latency_and_nfe(work, tmp_path, method, nfe):  # noqa: F811
     out = tmp_path / "out"
     assert driver.main([*TINY_ARGS, "--preset", "cpu_fair", "--methods", method, "--out", str(out),
