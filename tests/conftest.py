@@ -13,7 +13,7 @@ os.environ.setdefault("WANDB_MODE", "disabled")
 
 # The suite runs on two pytest-xdist workers (pyproject's addopts: `-n 2 --dist loadscope`; `-n 0` runs it in one
 # process). Each worker, and every process its tests start, gets one torch/OpenMP thread: two workers with two
-# threads each on a two-core machine run torch several times slower than one (the grid's allocator measurements).
+# threads each oversubscribe a two-core machine (docs/benchmarks.md: two threads beside a grid run, 8x slower).
 # xdist names the worker before this file is imported, so the setting reaches torch's first import.
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
